@@ -1,0 +1,1 @@
+"""Calibration: synthetic calibration sets and fitted curves f (shear) and g (normal)."""

@@ -1,0 +1,41 @@
+"""optitact: optical three-axis tactile sensing.
+
+Sensor models, the closed-form camera, the contact model and the CCD model are
+importable at once; the Mitsuba renderer lives in :mod:`optitact.render` and
+is imported only when used (``import optitact`` never imports mitsuba).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .camera import FisheyeCamera, dome_from_pixel, pixel_from_dome
+from .ccd import CCD
+from .contact import Contacts, cone_loads, contact_patches
+from .errors import InputError, OptitactError, RenderError, ShapeError
+from .sensor import DomeSensor
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "CCD",
+    "Contacts",
+    "DomeSensor",
+    "FisheyeCamera",
+    "InputError",
+    "OptitactError",
+    "RenderError",
+    "ShapeError",
+    "cone_loads",
+    "contact_patches",
+    "dome_from_pixel",
+    "pixel_from_dome",
+]
+
+_SUBPACKAGES = ("render", "calib", "forces")
+
+
+def __getattr__(name: str):
+    if name in _SUBPACKAGES:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,72 @@
+"""Validation helpers shared by the public entry points."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from .errors import InputError, ShapeError
+
+
+def real_array(value, name: str) -> np.ndarray:
+    """Return ``value`` as a float64 array, refusing non-numeric kinds.
+
+    Raises
+    ------
+    TypeError
+        If ``value`` is not a real numeric array (bool, complex, object and
+        string arrays are refused).
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(
+            f"{name} must be a real numeric array, got dtype {arr.dtype}"
+        )
+    return arr.astype(np.float64, copy=False)
+
+
+def finite(arr: np.ndarray, name: str) -> np.ndarray:
+    """Raise InputError if ``arr`` holds NaN or infinity."""
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise InputError(
+            f"{name} must be finite, got {arr[tuple(bad)]} at index {tuple(int(i) for i in bad)}"
+        )
+    return arr
+
+
+def shape_tail(arr: np.ndarray, tail: tuple[int, ...], name: str, what: str) -> np.ndarray:
+    """Check that the trailing dimensions of ``arr`` equal ``tail``."""
+    if arr.ndim < len(tail) or tuple(arr.shape[arr.ndim - len(tail):]) != tail:
+        raise ShapeError(f"{name} must have shape {what}, got {arr.shape}")
+    return arr
+
+
+def positive(value, name: str, *, allow_zero: bool = False) -> float:
+    """Return ``value`` as a float after checking it is a finite positive number."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    ok = v >= 0 if allow_zero else v > 0
+    if not np.isfinite(v) or not ok:
+        bound = ">= 0" if allow_zero else "> 0"
+        raise InputError(f"{name} must be finite and {bound}, got {value!r}")
+    return v
+
+
+def integer(value, name: str, *, minimum: int | None = None) -> int:
+    """Return ``value`` as an int after checking its kind and lower bound."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    v = int(value)
+    if minimum is not None and v < minimum:
+        raise InputError(f"{name} must be >= {minimum}, got {v}")
+    return v
+
+
+def seed_value(seed, name: str = "seed") -> int | None:
+    """Check a seed: None or a non-negative integer."""
+    if seed is None:
+        return None
+    return integer(seed, name, minimum=0)

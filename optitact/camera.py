@@ -1,0 +1,310 @@
+"""Closed-form camera model: an equidistant fisheye inside the dome, looking up its axis.
+
+Convention
+----------
+Image indices are ``(row, col)`` with the origin at the centre of the top-left
+pixel, as in scikit-image and SciPy; a pixel covers ``[col - 0.5, col + 0.5)``.
+Physical coordinates are global ``(x, y, z)`` in mm (see :mod:`optitact.sensor`).
+The camera sits on the dome axis at ``(0, 0, z)`` and looks along +z; image
+columns grow with global +x and rows with global +y (a right-handed camera
+frame seen from below, not mirrored).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from functools import lru_cache
+
+import numpy as np
+
+from ._validate import finite, integer, positive, real_array, shape_tail
+from .errors import InputError
+from .sensor import DomeSensor
+
+__all__ = ["FisheyeCamera", "pixel_from_dome", "dome_from_pixel"]
+
+#: Largest distance (mm) a point given to :func:`pixel_from_dome` may lie off the outer surface.
+SURFACE_TOLERANCE = 1e-4
+
+
+@dataclass(frozen=True)
+class FisheyeCamera:
+    """Equidistant fisheye camera (``r = f * alpha``) on the dome axis.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels, default 640 x 480.
+    fov_deg : float
+        Full field of view across the image's shorter side (deg), default 140;
+        the image circle of that field touches the shorter sides.
+    z : float
+        Height of the projection centre on the dome axis (mm), default -5
+        (below the dome's base plane, as a fiberscope under the dome).
+
+    Examples
+    --------
+    >>> cam = FisheyeCamera()
+    >>> s = DomeSensor.default()
+    >>> px = cam.project(s.element_positions, s)
+    >>> bool(np.allclose(cam.unproject(px, s), s.element_positions, atol=1e-9))
+    True
+    """
+
+    width: int = 640
+    height: int = 480
+    fov_deg: float = 140.0
+    z: float = -5.0
+
+    def __post_init__(self) -> None:
+        integer(self.width, "width", minimum=2)
+        integer(self.height, "height", minimum=2)
+        positive(self.fov_deg, "fov_deg")
+        if self.fov_deg >= 360.0:
+            raise InputError(f"fov_deg must be in (0, 360), got {self.fov_deg}")
+        if isinstance(self.z, bool) or not isinstance(self.z, (int, float)) or not math.isfinite(self.z):
+            raise InputError(f"z must be a finite number (mm), got {self.z!r}")
+
+    def to_dict(self) -> dict:
+        """Return the parameters as a JSON-friendly dict."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FisheyeCamera:
+        """Build a camera from :meth:`to_dict` output; unknown keys are a ValueError."""
+        valid = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - valid)
+        if unknown:
+            raise InputError(f"unknown camera parameters {unknown}; valid: {sorted(valid)}")
+        return cls(**d)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(height, width)``."""
+        return (self.height, self.width)
+
+    @property
+    def center(self) -> tuple[float, float]:
+        """Principal point ``(row, col)``: the image centre."""
+        return ((self.height - 1) / 2.0, (self.width - 1) / 2.0)
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels per radian: ``f = (min(W, H) / 2) / (fov / 2)``."""
+        return (min(self.width, self.height) / 2.0) / (math.radians(self.fov_deg) / 2.0)
+
+    # ------------------------------------------------------------------ rays
+    def ray_from_pixel(self, pixels) -> np.ndarray:
+        """Unit ray directions (global) for pixel positions ``(row, col)``, shape (..., 3).
+
+        Notes
+        -----
+        With ``(dr, dc) = (row, col) - center``, ``r = hypot(dr, dc)``, the
+        equidistant model gives the angle from the axis ``alpha = r / f`` and the
+        azimuth ``phi = atan2(dr, dc)``; the direction is
+        ``(sin a cos phi, sin a sin phi, cos a)``.
+        """
+        alpha, phi = self._polar_from_pixel(pixels)
+        return np.stack([np.sin(alpha) * np.cos(phi), np.sin(alpha) * np.sin(phi),
+                         np.cos(alpha)], axis=-1)
+
+    def pixel_from_ray(self, directions) -> np.ndarray:
+        """Pixel positions ``(row, col)`` of ray directions (need not be unit), shape (..., 2)."""
+        d = finite(shape_tail(real_array(directions, "directions"), (3,), "directions",
+                              "(..., 3)"), "directions")
+        alpha = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
+        phi = np.arctan2(d[..., 1], d[..., 0])
+        return self._pixel_from_polar(alpha, phi)
+
+    def _polar_from_pixel(self, pixels) -> tuple[np.ndarray, np.ndarray]:
+        p = finite(shape_tail(real_array(pixels, "pixels"), (2,), "pixels", "(..., 2) (row, col)"),
+                   "pixels")
+        cy, cx = self.center
+        dr, dc = p[..., 0] - cy, p[..., 1] - cx
+        return np.hypot(dr, dc) / self.focal_px, np.arctan2(dr, dc)
+
+    def _pixel_from_polar(self, alpha: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        cy, cx = self.center
+        r = self.focal_px * alpha
+        return np.stack([cy + r * np.sin(phi), cx + r * np.cos(phi)], axis=-1)
+
+    # ------------------------------------------------------------------ through the dome
+    def project(self, points, sensor: DomeSensor) -> np.ndarray:
+        """Pixels ``(row, col)`` where points on the outer dome surface appear; see :func:`pixel_from_dome`."""
+        return pixel_from_dome(points, sensor=sensor, camera=self)
+
+    def unproject(self, pixels, sensor: DomeSensor, *, outside: str = "raise") -> np.ndarray:
+        """Outer-surface dome points seen at pixels ``(row, col)``; see :func:`dome_from_pixel`."""
+        return dome_from_pixel(pixels, sensor=sensor, camera=self, outside=outside)
+
+    def dome_mask(self, sensor: DomeSensor) -> np.ndarray:
+        """(H, W) bool: pixel centres whose ray reaches the outer dome surface (z >= 0)."""
+        rows, cols = np.mgrid[0:self.height, 0:self.width]
+        alpha, _ = self._polar_from_pixel(np.stack([rows, cols], axis=-1))
+        return alpha <= _radial_map(sensor, self.z).alpha_max
+
+
+class _RadialMap:
+    """Polar angle of the seen dome point as a function of the ray angle, and its inverse.
+
+    The camera is on the axis, so the map is rotationally symmetric: a ray at
+    angle ``alpha`` from the axis, refracted at the inner surface, meets the
+    outer surface at polar angle ``theta(alpha)`` with the same azimuth.
+    """
+
+    def __init__(self, r_in: float, r_out: float, n: float, zc: float) -> None:
+        if not -r_in < zc < r_in:
+            raise InputError(
+                f"camera z must lie inside the dome's inner sphere (|z| < {r_in} mm), got {zc}"
+            )
+        self.r_in, self.r_out, self.n, self.zc = r_in, r_out, n, zc
+        # alpha_max: the last ray that still crosses the inner surface above the base
+        # plane and reaches the outer surface at z >= 0.
+        lo, hi = 0.0, math.pi
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            th, ok = self.theta(np.array([mid]))
+            if ok[0] and th[0] <= math.pi / 2:
+                lo = mid
+            else:
+                hi = mid
+        self.alpha_max = lo
+        self.theta_max = float(self.theta(np.array([lo]))[0][0])
+        self._alpha_tab = np.linspace(0.0, lo, 4097)
+        self._theta_tab = self.theta(self._alpha_tab)[0]
+        if np.any(np.diff(self._theta_tab) <= 0):
+            raise InputError("camera position gives a non-monotone view of the dome")
+
+    def theta(self, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Polar angle of the outer-surface point hit by rays at ``alpha``, and validity."""
+        sa, ca = np.sin(alpha), np.cos(alpha)
+        zc = self.zc
+        cd = zc * ca
+        t = -cd + np.sqrt(cd * cd - zc * zc + self.r_in**2)
+        qx, qz = t * sa, zc + t * ca  # hit on the inner sphere (rho, z)
+        nx, nz = qx / self.r_in, qz / self.r_in
+        cos_i = sa * nx + ca * nz
+        eta = 1.0 / self.n
+        cos_t = np.sqrt(1.0 - eta * eta * (1.0 - cos_i * cos_i))
+        tx = eta * sa + (cos_t - eta * cos_i) * nx
+        tz = eta * ca + (cos_t - eta * cos_i) * nz
+        qt = qx * tx + qz * tz
+        s = -qt + np.sqrt(qt * qt - self.r_in**2 + self.r_out**2)
+        px, pz = qx + s * tx, qz + s * tz
+        return np.arctan2(px, pz), (qz >= 0) & (pz >= 0)
+
+    def alpha(self, theta: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`theta` on ``[0, pi/2]``: table start, then Newton steps."""
+        a = np.interp(theta, self._theta_tab, self._alpha_tab)
+        h = 1e-7
+        for _ in range(6):
+            th = self.theta(a)[0]
+            slope = (self.theta(a + h)[0] - self.theta(a - h)[0]) / (2 * h)
+            a = np.clip(a - (th - theta) / slope, 0.0, self.alpha_max)
+        return a
+
+
+@lru_cache(maxsize=32)
+def _radial_map_cached(r_in: float, r_out: float, n: float, zc: float) -> _RadialMap:
+    return _RadialMap(r_in, r_out, n, zc)
+
+
+def _radial_map(sensor: DomeSensor, zc: float) -> _RadialMap:
+    return _radial_map_cached(sensor.inner_radius, sensor.outer_radius,
+                              sensor.refractive_index, float(zc))
+
+
+def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.ndarray:
+    """Project points on the outer dome surface into the image, seen through the dome.
+
+    Parameters
+    ----------
+    points : (..., 3) array_like
+        Global points (mm) on the outer surface (within ``SURFACE_TOLERANCE``),
+        visible through the inner surface: polar angle up to ``theta_max``
+        (88.3 deg for the default sensor and camera; points nearer the base
+        are seen only through the rim).
+    sensor : DomeSensor
+    camera : FisheyeCamera
+
+    Returns
+    -------
+    (..., 2) ndarray
+        Pixel positions ``(row, col)``; they may fall outside the image.
+
+    Notes
+    -----
+    A spot lies at the acrylic side of the outer surface, so light from it
+    crosses only the inner surface on its way to the camera: the camera ray
+    ``C + t d`` meets the inner sphere at ``Q``, refracts by Snell's law
+    (``n_air sin i = n sin t``, vector form
+    ``t = eta d + (cos_t - eta cos_i) n_hat``, ``eta = 1/n``) and meets the outer
+    sphere at ``P``. By symmetry ``P``'s azimuth equals the ray's and its polar
+    angle is a monotone function ``theta(alpha)`` of the ray angle, which is
+    inverted by Newton's method from a tabulated start; the round trip with
+    :func:`dome_from_pixel` is exact to ~1e-12 mm.
+    """
+    p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
+    radius = np.linalg.norm(p, axis=-1)
+    off = np.abs(radius - sensor.outer_radius)
+    if np.any(off > SURFACE_TOLERANCE):
+        raise InputError(
+            f"points must lie on the outer dome surface (radius {sensor.outer_radius} mm "
+            f"+- {SURFACE_TOLERANCE}), got a point at radius {radius.ravel()[np.argmax(off)]:.6g}"
+        )
+    if np.any(p[..., 2] < -SURFACE_TOLERANCE):
+        raise InputError(f"points must have z >= 0 (on the dome), got z = {p[..., 2].min():.6g}")
+    theta = np.arctan2(np.hypot(p[..., 0], p[..., 1]), p[..., 2])
+    phi = np.arctan2(p[..., 1], p[..., 0])
+    rmap = _radial_map(sensor, camera.z)
+    if np.any(theta > rmap.theta_max + 1e-12):
+        raise InputError(
+            f"points must be visible through the inner surface (polar angle <= "
+            f"{math.degrees(rmap.theta_max):.3f} deg for this camera), got "
+            f"{math.degrees(theta.max()):.3f} deg"
+        )
+    alpha = rmap.alpha(theta)
+    return camera._pixel_from_polar(alpha, phi)
+
+
+def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: FisheyeCamera,
+                    outside: str = "raise") -> np.ndarray:
+    """Outer-surface dome points seen at pixel positions ``(row, col)``.
+
+    Parameters
+    ----------
+    pixels : (..., 2) array_like
+        Pixel positions ``(row, col)`` (sub-pixel allowed).
+    sensor : DomeSensor
+    camera : FisheyeCamera
+    outside : {"raise", "nan"}
+        What to do with pixels whose ray misses the dome (passes below its
+        base): raise ``InputError`` (default) or return NaN rows for them
+        (use :meth:`FisheyeCamera.dome_mask` to find them beforehand).
+
+    Returns
+    -------
+    (..., 3) ndarray
+        Global points on the outer dome surface (mm).
+
+    Notes
+    -----
+    See :func:`pixel_from_dome` for the optics.
+    """
+    if outside not in ("raise", "nan"):
+        raise InputError(f"outside must be 'raise' or 'nan', got {outside!r}")
+    alpha, phi = camera._polar_from_pixel(pixels)
+    rmap = _radial_map(sensor, camera.z)
+    miss = alpha > rmap.alpha_max * (1 + 1e-12)
+    if outside == "raise" and np.any(miss):
+        raise InputError(
+            f"pixels must see the dome (ray angle <= {math.degrees(rmap.alpha_max):.3f} deg "
+            f"from the axis), got {math.degrees(alpha[miss].max()):.3f} deg"
+        )
+    theta = rmap.theta(np.minimum(alpha, rmap.alpha_max))[0]
+    r = sensor.outer_radius
+    pts = np.stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi),
+                    r * np.cos(theta)], axis=-1)
+    pts[miss] = np.nan
+    return pts

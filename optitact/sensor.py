@@ -1,0 +1,282 @@
+"""The optical three-axis tactile sensor: dome geometry and sensing elements.
+
+Convention
+----------
+Physical coordinates are ``(x, y, z)`` in mm. The global frame has its origin
+at the centre of the dome's base circle, ``z`` along the dome axis towards the
+apex. Elements are numbered 0 = apex, then ring by ring outwards, each ring
+counter-clockwise (seen from above) starting at +x. The element-local frame has
+``z`` = outward surface normal, ``x`` = the global x axis projected onto the
+tangent plane and normalised, ``y = z x x``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from functools import cached_property
+
+import numpy as np
+
+from ._validate import integer, positive
+from .errors import InputError
+
+__all__ = ["DomeSensor"]
+
+
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class DomeSensor:
+    """Geometry and materials of the hemispherical optical tactile sensor.
+
+    All lengths in mm, forces in N, moduli in MPa (= N/mm^2), angles in degrees.
+
+    Parameters
+    ----------
+    outer_radius : float
+        Radius of the acrylic dome's outer surface (mm), default 20.
+    shell_thickness : float
+        Thickness of the acrylic shell (mm), default 3; inner radius is
+        ``outer_radius - shell_thickness``.
+    refractive_index : float
+        Refractive index of the acrylic, default 1.49.
+    ring_counts : tuple of int
+        Number of elements per ring, apex first, default ``(1, 8, 16, 16)``.
+    ring_polar_deg : tuple of float
+        Polar angle of each ring from the dome axis (deg), default
+        ``(0, 22.5, 45, 67.5)``. A ring at 0 deg must hold exactly one element.
+    column_diameter : float
+        Diameter of the columnar feeler (mm), default 2.5.
+    lever_arm : float
+        Height of the columnar feeler's load point above the cone tips (mm),
+        default 3; shear times lever arm is the moment the cones balance.
+    n_cones : int
+        Conical feelers per element, default 8, centres evenly on a circle.
+    cone_circle_radius : float
+        Radius of the circle through the cone centres (mm), default 1.25.
+    cone_apex_deg : float
+        Full apex angle of each conical feeler (deg), default 90.
+    cone_base_radius : float
+        Base radius of a conical feeler (mm), default 0.45: the largest
+        contact radius, reached when the cone is fully flattened.
+    youngs_modulus : float
+        Rubber Young's modulus E (MPa), default 1.
+    poisson_ratio : float
+        Rubber Poisson ratio nu, default 0.49.
+    preload : float
+        Normal preload per element (N), default 0; keeps cone tips lightly
+        touching as on the real sensor.
+
+    Examples
+    --------
+    >>> s = DomeSensor.default()
+    >>> s.n_elements
+    41
+    >>> s.element_positions.shape
+    (41, 3)
+    """
+
+    outer_radius: float = 20.0
+    shell_thickness: float = 3.0
+    refractive_index: float = 1.49
+    ring_counts: tuple[int, ...] = (1, 8, 16, 16)
+    ring_polar_deg: tuple[float, ...] = (0.0, 22.5, 45.0, 67.5)
+    column_diameter: float = 2.5
+    lever_arm: float = 3.0
+    n_cones: int = 8
+    cone_circle_radius: float = 1.25
+    cone_apex_deg: float = 90.0
+    cone_base_radius: float = 0.45
+    youngs_modulus: float = 1.0
+    poisson_ratio: float = 0.49
+    preload: float = field(default=0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("outer_radius", "shell_thickness", "refractive_index", "column_diameter",
+                     "lever_arm", "cone_circle_radius", "cone_apex_deg", "cone_base_radius",
+                     "youngs_modulus"):
+            positive(getattr(self, name), name)
+        positive(self.preload, "preload", allow_zero=True)
+        positive(self.poisson_ratio, "poisson_ratio", allow_zero=True)
+        if self.poisson_ratio >= 0.5:
+            raise InputError(f"poisson_ratio must be in [0, 0.5), got {self.poisson_ratio}")
+        if self.shell_thickness >= self.outer_radius:
+            raise InputError(
+                f"shell_thickness must be < outer_radius ({self.outer_radius} mm), "
+                f"got {self.shell_thickness}"
+            )
+        if self.refractive_index <= 1.0:
+            raise InputError(f"refractive_index must be > 1, got {self.refractive_index}")
+        if self.cone_apex_deg >= 180.0:
+            raise InputError(f"cone_apex_deg must be in (0, 180), got {self.cone_apex_deg}")
+        integer(self.n_cones, "n_cones", minimum=3)
+        counts = tuple(self.ring_counts)
+        polars = tuple(self.ring_polar_deg)
+        object.__setattr__(self, "ring_counts", counts)
+        object.__setattr__(self, "ring_polar_deg", polars)
+        if len(counts) == 0 or len(counts) != len(polars):
+            raise InputError(
+                "ring_counts and ring_polar_deg must be non-empty and of equal length, "
+                f"got {len(counts)} and {len(polars)}"
+            )
+        for i, (n, p) in enumerate(zip(counts, polars, strict=True)):
+            integer(n, f"ring_counts[{i}]", minimum=1)
+            pv = positive(p, f"ring_polar_deg[{i}]", allow_zero=True)
+            if pv >= 90.0:
+                raise InputError(f"ring_polar_deg[{i}] must be in [0, 90), got {p}")
+            if pv == 0.0 and n != 1:
+                raise InputError(f"a ring at polar angle 0 must hold 1 element, got {n}")
+        if list(polars) != sorted(polars) or len(set(polars)) != len(polars):
+            raise InputError(f"ring_polar_deg must be strictly increasing, got {polars}")
+        pitch = 2.0 * self.cone_circle_radius * math.sin(math.pi / self.n_cones)
+        if 2.0 * self.cone_base_radius > pitch:
+            raise InputError(
+                f"cone_base_radius {self.cone_base_radius} mm makes neighbouring cones overlap "
+                f"(at most {pitch / 2:.4g} mm for {self.n_cones} cones on a "
+                f"{self.cone_circle_radius} mm circle)"
+            )
+
+    @classmethod
+    def default(cls) -> DomeSensor:
+        """Return the 41-element sensor with the published dimensions."""
+        return cls()
+
+    # ----------------------------------------------------------------- serialisation
+    def to_dict(self) -> dict:
+        """Return the parameters as a JSON-friendly dict."""
+        d = asdict(self)
+        d["ring_counts"] = list(self.ring_counts)
+        d["ring_polar_deg"] = list(self.ring_polar_deg)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> DomeSensor:
+        """Build a sensor from :meth:`to_dict` output; unknown keys are a ValueError."""
+        if not isinstance(d, dict):
+            raise TypeError(f"sensor parameters must be a dict, got {type(d).__name__}")
+        valid = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - valid)
+        if unknown:
+            raise InputError(f"unknown sensor parameters {unknown}; valid: {sorted(valid)}")
+        kw = dict(d)
+        for key in ("ring_counts", "ring_polar_deg"):
+            if key in kw:
+                kw[key] = tuple(kw[key])
+        return cls(**kw)
+
+    # ----------------------------------------------------------------- derived geometry
+    @property
+    def inner_radius(self) -> float:
+        """Radius of the dome's inner surface (mm)."""
+        return self.outer_radius - self.shell_thickness
+
+    @property
+    def n_elements(self) -> int:
+        """Number of sensing elements."""
+        return int(sum(self.ring_counts))
+
+    @property
+    def effective_modulus(self) -> float:
+        """Plane-strain modulus E* = E / (1 - nu^2) of rubber on rigid acrylic (MPa)."""
+        return self.youngs_modulus / (1.0 - self.poisson_ratio**2)
+
+    @property
+    def shear_modulus(self) -> float:
+        """Rubber shear modulus G = E / (2 (1 + nu)) (MPa)."""
+        return self.youngs_modulus / (2.0 * (1.0 + self.poisson_ratio))
+
+    @property
+    def cone_half_angle(self) -> float:
+        """Semi-apex angle alpha of a conical feeler (rad)."""
+        return math.radians(self.cone_apex_deg) / 2.0
+
+    @property
+    def max_cone_load(self) -> float:
+        """Load (N) at which one cone is fully flattened (contact radius = base radius).
+
+        From Sneddon's cone, ``A = 2 P tan(alpha) / E*`` with ``A = pi r_base^2``.
+        """
+        area = math.pi * self.cone_base_radius**2
+        return area * self.effective_modulus / (2.0 * math.tan(self.cone_half_angle))
+
+    @cached_property
+    def element_ring(self) -> np.ndarray:
+        """Ring index of each element, shape (N,)."""
+        return _frozen(np.repeat(np.arange(len(self.ring_counts)), self.ring_counts))
+
+    @cached_property
+    def element_polar(self) -> np.ndarray:
+        """Polar angle of each element from the dome axis (rad), shape (N,)."""
+        return _frozen(np.deg2rad(np.repeat(np.asarray(self.ring_polar_deg, float),
+                                            self.ring_counts)))
+
+    @cached_property
+    def element_azimuth(self) -> np.ndarray:
+        """Azimuth of each element, counter-clockwise from +x (rad), shape (N,)."""
+        az = np.concatenate([2.0 * np.pi * np.arange(n) / n for n in self.ring_counts])
+        return _frozen(az)
+
+    @cached_property
+    def element_positions(self) -> np.ndarray:
+        """Element centres on the outer dome surface, global mm, shape (N, 3)."""
+        return _frozen(self.outer_radius * self.element_frames[:, 2, :].copy())
+
+    @cached_property
+    def element_frames(self) -> np.ndarray:
+        """Element-local axes as rows, shape (N, 3, 3): ``frames[i] = [x_i, y_i, z_i]``.
+
+        ``z`` is the outward normal, ``x`` the global x axis projected onto the
+        tangent plane and normalised, ``y = z x x``. A vector ``v_local`` maps
+        to global as ``frames[i].T @ v_local``.
+        """
+        th, ph = self.element_polar, self.element_azimuth
+        z = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+        ex = np.array([1.0, 0.0, 0.0])
+        x = ex - (z @ ex)[:, None] * z
+        x /= np.linalg.norm(x, axis=-1, keepdims=True)
+        y = np.cross(z, x)
+        return _frozen(np.stack([x, y, z], axis=1))
+
+    @cached_property
+    def cone_offsets(self) -> np.ndarray:
+        """Cone centres in the element's tangent plane (local x, y; mm), shape (n_cones, 2).
+
+        Cone ``k`` sits at angle ``2 pi k / n_cones`` counter-clockwise from local x.
+        """
+        psi = 2.0 * np.pi * np.arange(self.n_cones) / self.n_cones
+        return _frozen(self.cone_circle_radius * np.stack([np.cos(psi), np.sin(psi)], axis=-1))
+
+    def dome_point(self, element: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Map tangent-plane offsets around elements onto the outer dome surface.
+
+        Parameters
+        ----------
+        element : (...) int array
+            Element indices.
+        offset : (..., 2) array
+            Offsets in the element-local x/y tangent coordinates (mm), measured
+            as geodesic arc length along the dome surface.
+
+        Returns
+        -------
+        (..., 3) ndarray
+            Global points on the outer surface (mm).
+
+        Notes
+        -----
+        The exponential map of the sphere: for a tangent offset ``t`` of length
+        ``s`` at the element normal ``n``, the point is
+        ``R (cos(s/R) n + sin(s/R) t/s)``.
+        """
+        frames = self.element_frames[np.asarray(element)]
+        off = np.asarray(offset, dtype=np.float64)
+        t = off[..., 0:1] * frames[..., 0, :] + off[..., 1:2] * frames[..., 1, :]
+        s = np.linalg.norm(off, axis=-1, keepdims=True)
+        ang = s / self.outer_radius
+        safe = np.where(s > 0, s, 1.0)
+        direction = np.cos(ang) * frames[..., 2, :] + np.sin(ang) * t / safe
+        return self.outer_radius * direction

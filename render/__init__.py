@@ -1,0 +1,146 @@
+"""Physically based synthetic camera frames of the optical tactile sensor (Mitsuba 3).
+
+Import cost: importing :mod:`optitact.render` does not import mitsuba; the
+first :func:`render` call does, after pointing Dr.Jit at a usable libLLVM.
+
+Examples
+--------
+>>> import numpy as np, optitact
+>>> from optitact.render import render
+>>> s = optitact.DomeSensor.default()
+>>> f = np.zeros((41, 3)); f[0, 2] = 0.5
+>>> cam = optitact.FisheyeCamera(width=64, height=48)
+>>> img = render(s, f, camera=cam, spp=4, seed=1)
+>>> img.shape, img.dtype
+((48, 64), dtype('float32'))
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from optitact._validate import integer, seed_value
+from optitact.camera import FisheyeCamera
+from optitact.contact import Contacts, check_forces, contact_patches
+from optitact.errors import InputError
+from optitact.sensor import DomeSensor
+
+from ._backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
+from .scene import RenderSettings
+
+__all__ = ["render", "render_contacts", "RenderSettings", "select_variant", "active_variant", "find_libllvm",
+           "PREFERRED_VARIANTS", "pass_seeds"]
+
+#: Samples per pixel rendered in one Mitsuba launch; larger spp runs as several passes.
+SPP_PER_PASS = 16
+
+
+def pass_seeds(seed: int, n_passes: int) -> list[int]:
+    """Mitsuba seeds (uint32) of the passes of one frame, derived from its seed."""
+    return [int(s) for s in np.random.SeedSequence(seed).generate_state(n_passes)]
+
+
+def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None:
+    if crop is None:
+        return None
+    if len(crop) != 4:
+        raise InputError(f"crop must be (row0, col0, height, width), got {crop!r}")
+    r0, c0, h, w = (integer(v, f"crop[{i}]", minimum=0) for i, v in enumerate(crop))
+    if h < 1 or w < 1 or r0 + h > camera.height or c0 + w > camera.width:
+        raise InputError(
+            f"crop window (row0={r0}, col0={c0}, height={h}, width={w}) must lie inside the "
+            f"{camera.height}x{camera.width} image and be non-empty"
+        )
+    return r0, c0, h, w
+
+
+def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, spp: int = 64,
+           seed: int = 0, variant: str | None = None, settings: RenderSettings | None = None,
+           crop: tuple[int, int, int, int] | None = None, progress: bool = False) -> np.ndarray:
+    """Render the radiance image the camera sees for element-local forces.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    forces : (N, 3) array_like
+        Element-local forces ``(Fx, Fy, Fz)`` in N.
+    camera : FisheyeCamera, optional
+        Default ``FisheyeCamera()`` (640 x 480).
+    spp : int
+        Samples per pixel (>= 1), default 64.
+    seed : int
+        Seed (>= 0); the same seed and settings give the same frame
+        (bit-identical on scalar_rgb, equal to float rounding on JIT variants).
+    variant : str, optional
+        Mitsuba variant; default: the fastest that works (cuda > llvm > scalar).
+    settings : RenderSettings, optional
+        Physical and numerical settings, default ``RenderSettings()``.
+    crop : (row0, col0, height, width), optional
+        Render only this window; the result then has shape ``(height, width)``.
+    progress : bool
+        Show a progress bar over render passes on stderr.
+
+    Returns
+    -------
+    (H, W) float32 ndarray
+        Radiance (arbitrary units, linear in ``settings.rim_radiance``).
+
+    Notes
+    -----
+    Every input is checked before Mitsuba is imported. ``spp`` is rendered in
+    passes of at most ``SPP_PER_PASS`` samples whose seeds derive from
+    ``seed`` (:func:`pass_seeds`); the passes are averaged in float64.
+    """
+    if not isinstance(sensor, DomeSensor):
+        raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
+    check_forces(forces, sensor)
+    return render_contacts(sensor, contact_patches(sensor, forces), camera=camera, spp=spp,
+                           seed=seed, variant=variant, settings=settings, crop=crop,
+                           progress=progress)
+
+
+def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
+                    camera: FisheyeCamera | None = None, spp: int = 64, seed: int = 0,
+                    variant: str | None = None, settings: RenderSettings | None = None,
+                    crop: tuple[int, int, int, int] | None = None,
+                    progress: bool = False) -> np.ndarray:
+    """Render given contact patches (e.g. from :func:`optitact.contact_patches`).
+
+    Parameters are those of :func:`render`, with ``contacts`` in place of
+    ``forces``: patches need not come from the contact model (a single patch
+    at a chosen dome point, say).
+    """
+    if not isinstance(sensor, DomeSensor):
+        raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
+    if not isinstance(contacts, Contacts):
+        raise TypeError(f"contacts must be a Contacts, got {type(contacts).__name__}")
+    camera = FisheyeCamera() if camera is None else camera
+    if not isinstance(camera, FisheyeCamera):
+        raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+    settings = RenderSettings() if settings is None else settings
+    if not isinstance(settings, RenderSettings):
+        raise TypeError(f"settings must be a RenderSettings, got {type(settings).__name__}")
+    spp = integer(spp, "spp", minimum=1)
+    seed = seed_value(seed)
+    if seed is None:
+        raise InputError("seed must be a non-negative integer, got None")
+    crop = _check_crop(crop, camera)
+
+    mi, _ = select_variant(variant)
+    from .scene import build_scene
+
+    scene = build_scene(mi, sensor, camera, contacts, settings, crop=crop)
+    n_passes = -(-spp // SPP_PER_PASS)
+    counts = [spp // n_passes + (1 if i < spp % n_passes else 0) for i in range(n_passes)]
+    acc = None
+    passes = zip(counts, pass_seeds(seed, n_passes), strict=True)
+    if progress:
+        from tqdm import tqdm
+
+        passes = tqdm(passes, total=n_passes, desc="render", unit="pass", file=sys.stderr)
+    for count, pass_seed in passes:
+        img = np.asarray(mi.render(scene, spp=count, seed=pass_seed), dtype=np.float64)[..., 0]
+        acc = img * count if acc is None else acc + img * count
+    return (acc / spp).astype(np.float32)

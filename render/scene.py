@@ -1,0 +1,290 @@
+"""Mitsuba scene of the optical tactile sensor: acrylic shell, rim light, contact patches, fisheye.
+
+Convention
+----------
+Global ``(x, y, z)`` in mm as in :mod:`optitact.sensor`; the film is indexed
+``(row, col)`` like the closed-form camera (:mod:`optitact.camera`).
+
+The geometry is built as numpy triangle meshes (cached per sensor) and handed
+to Mitsuba in memory; nothing is written to disk.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from optitact._validate import integer, positive
+from optitact.camera import FisheyeCamera
+from optitact.contact import Contacts
+from optitact.errors import InputError
+from optitact.sensor import DomeSensor
+
+__all__ = ["RenderSettings", "shell_mesh", "patch_mesh", "build_scene"]
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Physical and numerical settings of the reference renderer.
+
+    Parameters
+    ----------
+    max_depth : int
+        Longest light path (segments), default 40: guided light reaches a
+        patch after many total internal reflections. Russian roulette is off
+        (``rr_depth = max_depth``), so no path is cut short at random.
+    rim_radiance : float
+        Radiance of the rim light source (arbitrary units; the CCD exposure
+        maps it to digital numbers), default 1.
+    rubber_reflectance : float
+        Diffuse albedo of the rubber where it touches the acrylic, default 0.8.
+    patch_inset : float
+        Depth of a patch below the outer surface (mm), default 0.02: the patch
+        lies inside the acrylic, clear of the tessellated outer surface.
+    n_polar, n_azimuth : int
+        Tessellation of each hemisphere (rings from apex to rim, segments
+        around), default 96 x 384 (surface sag < 0.001 mm).
+    patch_segments : int
+        Polygon sides of a patch disc, default 24 (area kept exact).
+    """
+
+    max_depth: int = 40
+    rim_radiance: float = 1.0
+    rubber_reflectance: float = 0.8
+    patch_inset: float = 0.02
+    n_polar: int = 96
+    n_azimuth: int = 384
+    patch_segments: int = 24
+
+    def __post_init__(self) -> None:
+        integer(self.max_depth, "max_depth", minimum=3)
+        positive(self.rim_radiance, "rim_radiance")
+        positive(self.rubber_reflectance, "rubber_reflectance")
+        if self.rubber_reflectance > 1.0:
+            raise InputError(f"rubber_reflectance must be <= 1, got {self.rubber_reflectance}")
+        positive(self.patch_inset, "patch_inset")
+        integer(self.n_polar, "n_polar", minimum=4)
+        integer(self.n_azimuth, "n_azimuth", minimum=8)
+        integer(self.patch_segments, "patch_segments", minimum=6)
+
+    def to_dict(self) -> dict:
+        """Return the settings as a JSON-friendly dict."""
+        return asdict(self)
+
+
+def _orient(v: np.ndarray, f: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Flip triangles whose winding disagrees with their vertex normals."""
+    e = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    flip = (e * n[f].sum(axis=1)).sum(axis=1) < 0
+    f = f.copy()
+    f[flip] = f[flip][:, ::-1]
+    return f
+
+
+def _hemisphere(radius: float, n_polar: int, n_az: int, outward: bool):
+    theta = np.linspace(0.0, np.pi / 2, n_polar + 1)[1:]
+    phi = 2.0 * np.pi * np.arange(n_az) / n_az
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    dirs = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+    dirs[-1, :, 2] = 0.0  # the rim ring lies exactly in the base plane
+    dirs = np.concatenate([[[0.0, 0.0, 1.0]], dirs.reshape(-1, 3)])
+    v = radius * dirs
+    idx = 1 + np.arange(n_polar * n_az).reshape(n_polar, n_az)
+    nxt = np.roll(idx, -1, axis=1)
+    faces = [np.stack([np.zeros(n_az, int), idx[0], nxt[0]], axis=1)]
+    a, b, c, d = idx[:-1], nxt[:-1], idx[1:], nxt[1:]
+    faces += [np.stack([a, c, d], axis=-1).reshape(-1, 3), np.stack([a, d, b], axis=-1).reshape(-1, 3)]
+    f = np.concatenate(faces)
+    n = dirs if outward else -dirs
+    return v, _orient(v, f, n), n
+
+
+def _annulus(r_in: float, r_out: float, z: float, n_az: int, normal_z: float):
+    phi = 2.0 * np.pi * np.arange(n_az) / n_az
+    ring = np.stack([np.cos(phi), np.sin(phi), np.zeros(n_az)], axis=-1)
+    v = np.concatenate([r_in * ring, r_out * ring])
+    v[:, 2] = z
+    i = np.arange(n_az)
+    j = np.roll(i, -1)
+    f = np.concatenate([np.stack([i, j, n_az + i], axis=1), np.stack([j, n_az + j, n_az + i], axis=1)])
+    n = np.tile([0.0, 0.0, normal_z], (2 * n_az, 1))
+    return v, _orient(v, f, n), n
+
+
+@lru_cache(maxsize=8)
+def shell_mesh(r_in: float, r_out: float, n_polar: int, n_az: int, emitter_gap: float = 0.01):
+    """Triangle meshes ``(vertices, faces, normals)`` of the shell and the rim light.
+
+    Returns a dict with keys ``outer`` (normals outward), ``inner`` (normals
+    towards the dome centre, i.e. out of the acrylic), ``rim`` (the base
+    annulus of the shell, normal -z) and ``light`` (an annulus ``emitter_gap``
+    mm below the rim, normal +z, facing the rim). Normals point out of the
+    acrylic, as Mitsuba's dielectric expects (interior = acrylic).
+    """
+    return {
+        "outer": _hemisphere(r_out, n_polar, n_az, outward=True),
+        "inner": _hemisphere(r_in, n_polar, n_az, outward=False),
+        "rim": _annulus(r_in, r_out, 0.0, n_az, -1.0),
+        "light": _annulus(r_in, r_out, -emitter_gap, n_az, 1.0),
+    }
+
+
+def patch_mesh(contacts: Contacts, *, radius: float, inset: float, segments: int):
+    """One triangle mesh with a flat disc per touching cone, or None if nothing touches.
+
+    Each disc is a regular ``segments``-gon in the tangent plane at its patch
+    centre, ``inset`` mm inside the outer surface, with circumradius scaled so
+    that its area equals the contact area ``pi a^2``.
+    """
+    touching = contacts.radii > 0
+    if not touching.any():
+        return None
+    centers = contacts.centers[touching]
+    radii = contacts.radii[touching]
+    normal = centers / np.linalg.norm(centers, axis=1, keepdims=True)
+    helper = np.where(np.abs(normal[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = np.cross(helper, normal)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    w = np.cross(normal, u)
+    k = segments
+    circ = radii * math.sqrt(2.0 * math.pi / (k * math.sin(2.0 * math.pi / k)))
+    ang = 2.0 * np.pi * np.arange(k) / k
+    mid = (radius - inset) * normal
+    rim = (mid[:, None, :] + circ[:, None, None]
+           * (np.cos(ang)[None, :, None] * u[:, None, :] + np.sin(ang)[None, :, None] * w[:, None, :]))
+    m = len(radii)
+    v = np.concatenate([mid[:, None, :], rim], axis=1).reshape(-1, 3)
+    base = (k + 1) * np.arange(m)[:, None]
+    i = np.arange(k)
+    f = np.stack([np.broadcast_to(base, (m, k)), base + 1 + i, base + 1 + (i + 1) % k], axis=-1)
+    f = f.reshape(-1, 3)
+    n = np.repeat(-normal, k + 1, axis=0)  # faces towards the dome centre (the camera)
+    return v, _orient(v, f, n), n
+
+
+def _mi_mesh(mi, name: str, data, props) -> object:
+    v, f, n = data
+    mesh = mi.Mesh(name, len(v), len(f), props=props, has_vertex_normals=n is not None)
+    params = mi.traverse(mesh)
+    arrays = [("vertex_positions", v, np.float32), ("faces", f, np.uint32)]
+    if n is not None:
+        arrays.append(("vertex_normals", n, np.float32))
+    for key, arr, dtype in arrays:
+        params[key] = type(params[key])(np.ascontiguousarray(arr, dtype=dtype).ravel())
+    params.update()
+    return mesh
+
+
+_SENSOR_REGISTERED: set = set()
+
+
+def register_fisheye(mi) -> str:
+    """Register the equidistant fisheye sensor plugin for the active variant."""
+    name = "optitact_fisheye"
+    if mi.variant() in _SENSOR_REGISTERED:
+        return name
+    import drjit as dr
+
+    class Fisheye(mi.Sensor):
+        """Equidistant fisheye on the dome axis; same model as :class:`FisheyeCamera`."""
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.focal = float(props.get("focal_px"))
+            self.cz = float(props.get("camera_z"))
+
+        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
+                       active=True):
+            film = self.film()
+            size = mi.ScalarVector2f(film.size())
+            p = (mi.ScalarVector2f(film.crop_offset())
+                 + position_sample * mi.ScalarVector2f(film.crop_size()))
+            dx = p.x - 0.5 * size.x  # film x = col + 0.5; principal point at the centre
+            dy = p.y - 0.5 * size.y
+            r = dr.sqrt(dx * dx + dy * dy)
+            alpha = r / self.focal
+            s = dr.select(r > 1e-12, dr.sin(alpha) / r, 0.0)
+            d = mi.Vector3f(dx * s, dy * s, dr.cos(alpha))
+            ray = mi.Ray3f(mi.Point3f(0.0, 0.0, self.cz), d, time, [])
+            return ray, mi.Spectrum(1.0)
+
+        def sample_ray_differential(self, time, wavelength_sample, position_sample,
+                                    aperture_sample, active=True):
+            ray, weight = self.sample_ray(time, wavelength_sample, position_sample,
+                                          aperture_sample, active)
+            return mi.RayDifferential3f(ray), weight
+
+        def to_string(self):
+            return f"Fisheye[focal_px={self.focal}, z={self.cz}]"
+
+    mi.register_sensor(name, lambda props: Fisheye(props))
+    _SENSOR_REGISTERED.add(mi.variant())
+    return name
+
+
+def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts,
+                settings: RenderSettings, *, crop: tuple[int, int, int, int] | None = None):
+    """Assemble the Mitsuba scene for one frame.
+
+    Parameters
+    ----------
+    mi : module
+        The mitsuba module with the variant already set.
+    sensor, camera, contacts, settings
+        What to render.
+    crop : (row0, col0, height, width), optional
+        Render only this window of the film.
+
+    Notes
+    -----
+    Physics: an acrylic dielectric shell (``int_ior = n``, ``ext_ior = 1``)
+    closed by its rim annulus; a Lambertian emitter just below the rim injects
+    light, which the shell guides by total internal reflection. Where a cone
+    touches, a diffuse rubber patch inside the outer surface scatters the
+    guided light (frustrated TIR); the part scattered below the critical angle
+    leaves through the inner surface towards the fisheye camera. Unloaded
+    elements get no geometry.
+    """
+    shell = shell_mesh(sensor.inner_radius, sensor.outer_radius, settings.n_polar,
+                       settings.n_azimuth)
+    acrylic = mi.load_dict({"type": "dielectric", "int_ior": float(sensor.refractive_index),
+                            "ext_ior": 1.0})
+    objects = {}
+    for name in ("outer", "inner", "rim"):
+        props = mi.Properties()
+        props["bsdf"] = acrylic
+        objects[f"shell_{name}"] = _mi_mesh(mi, f"shell_{name}", shell[name], props)
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}})
+    props["emitter"] = mi.load_dict({"type": "area", "radiance": {
+        "type": "rgb", "value": float(settings.rim_radiance)}})
+    objects["rim_light"] = _mi_mesh(mi, "rim_light", shell["light"], props)
+    patches = patch_mesh(contacts, radius=sensor.outer_radius, inset=settings.patch_inset,
+                         segments=settings.patch_segments)
+    if patches is not None:
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": {
+            "type": "diffuse",
+            "reflectance": {"type": "rgb", "value": float(settings.rubber_reflectance)}}})
+        v, f, _ = patches
+        objects["patches"] = _mi_mesh(mi, "patches", (v, f, None), props)
+
+    film = {"type": "hdrfilm", "width": camera.width, "height": camera.height,
+            "pixel_format": "luminance", "rfilter": {"type": "box"}, "sample_border": False}
+    if crop is not None:
+        r0, c0, h, w = crop
+        film.update(crop_offset_x=int(c0), crop_offset_y=int(r0), crop_width=int(w),
+                    crop_height=int(h))
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": settings.max_depth,
+                       "rr_depth": settings.max_depth},
+        "camera": {"type": register_fisheye(mi), "focal_px": camera.focal_px,
+                   "camera_z": float(camera.z), "film": film,
+                   "sampler": {"type": "independent", "sample_count": 1}},
+        **objects,
+    }
+    return mi.load_dict(scene)
