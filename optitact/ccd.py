@@ -28,7 +28,7 @@ class CCD:
 
     Parameters
     ----------
-    exposure : float, default 4000.0
+    exposure : float, default 25000.0
         Photo-electrons per unit radiance per frame (exposure time, lens
         throughput and quantum efficiency folded into one factor), in
         electrons / radiance unit. Finite and > 0.

@@ -25,7 +25,8 @@ __all__ = ["PREFERRED_VARIANTS", "find_libllvm", "select_variant", "active_varia
 PREFERRED_VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
 MIN_LLVM_MAJOR = 19
 
-_state: dict = {"variant": None, "llvm_path": None, "message": None}
+_state: dict = {"variant": None, "auto": None, "verified": set(), "llvm_path": None,
+                "message": None}
 
 
 def _llvm_major(path: str) -> int | None:
@@ -121,23 +122,26 @@ def select_variant(requested: str | None = None):
             raise TypeError(f"variant must be a str, got {type(requested).__name__}")
         if requested not in available:
             raise InputError(f"unknown Mitsuba variant {requested!r}; available: {available}")
-        if _state["variant"] != requested:
+        if requested not in _state["verified"]:
             reason = _works(mi, dr, requested)
             if reason:
                 raise RenderError(f"Mitsuba variant {requested!r} cannot run here: {reason}")
-            _state["variant"] = requested
+            _state["verified"].add(requested)
         mi.set_variant(requested)
+        _state["variant"] = requested
         return mi, requested
-    if _state["variant"] is not None and _state.get("auto"):
-        mi.set_variant(_state["variant"])
-        return mi, _state["variant"]
+    if _state["auto"] is not None:
+        mi.set_variant(_state["auto"])
+        _state["variant"] = _state["auto"]
+        return mi, _state["auto"]
     reasons = []
     for variant in PREFERRED_VARIANTS:
         if variant not in available:
             continue
         reason = _works(mi, dr, variant)
         if reason is None:
-            _state.update(variant=variant, auto=True)
+            _state.update(variant=variant, auto=variant)
+            _state["verified"].add(variant)
             if reasons:
                 msg = ("optitact: rendering on " + variant + " (" + "; ".join(reasons) + ")")
                 if variant == "scalar_rgb":

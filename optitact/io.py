@@ -1,0 +1,126 @@
+"""Reading and writing forces and frames.
+
+Forces CSV format: one row per element, in element order, with columns
+``fx, fy, fz`` (element-local, N) or ``element, fx, fy, fz``. A header row
+naming the columns is optional; blank lines and lines starting with ``#`` are
+ignored.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, ShapeError
+
+__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json"]
+
+_HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
+
+
+def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
+    """Read element-local forces (N) from a CSV file.
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file (see the module docstring for the format).
+    n_elements : int
+        Expected number of rows (elements).
+
+    Returns
+    -------
+    (n_elements, 3) float64 ndarray
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    InputError
+        A cell that is not a finite number (the message gives line and column),
+        element indices out of order.
+    ShapeError
+        Wrong number of rows or columns.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"forces file not found: {path}")
+    rows: list[tuple[int, list[str]]] = []
+    with path.open(newline="") as fh:
+        for lineno, row in enumerate(csv.reader(fh), start=1):
+            cells = [c.strip() for c in row]
+            if not any(cells) or cells[0].startswith("#"):
+                continue
+            rows.append((lineno, cells))
+    if rows and [c.lower() for c in rows[0][1]] in _HEADERS:
+        rows = rows[1:]
+    if not rows:
+        raise ShapeError(f"{path}: expected {n_elements} rows of fx, fy, fz (N), got none")
+    width = len(rows[0][1])
+    if width not in (3, 4):
+        raise ShapeError(
+            f"{path}, line {rows[0][0]}: expected 3 columns (fx, fy, fz) or 4 "
+            f"(element, fx, fy, fz), got {width}"
+        )
+    values = np.empty((len(rows), width))
+    for i, (lineno, cells) in enumerate(rows):
+        if len(cells) != width:
+            raise ShapeError(f"{path}, line {lineno}: expected {width} columns, got {len(cells)}")
+        for j, cell in enumerate(cells):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise InputError(
+                    f"{path}, line {lineno}, column {j + 1}: {cell!r} is not a number"
+                ) from None
+            if not math.isfinite(v):
+                raise InputError(f"{path}, line {lineno}, column {j + 1}: {cell!r} is not finite")
+            values[i, j] = v
+    if len(rows) != n_elements:
+        raise ShapeError(f"{path}: expected {n_elements} rows (one per element), got {len(rows)}")
+    if width == 4:
+        if not np.array_equal(values[:, 0], np.arange(n_elements)):
+            raise InputError(f"{path}: the element column must read 0, 1, ..., {n_elements - 1}")
+        values = values[:, 1:]
+    return values
+
+
+def write_forces_csv(path: str | os.PathLike, forces: np.ndarray) -> None:
+    """Write element-local forces (N, 3) as ``element, fx, fy, fz`` CSV with a header."""
+    f = np.asarray(forces, dtype=np.float64)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ShapeError(f"forces must have shape (N, 3), got {f.shape}")
+    with Path(path).open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(_HEADERS[1])
+        for i, row in enumerate(f):
+            w.writerow([i, *(repr(float(v)) for v in row)])
+
+
+def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write a uint8/uint16 greyscale or (H, W, 3) BGR image as PNG (OpenCV)."""
+    import cv2
+
+    img = np.asarray(image)
+    if img.dtype not in (np.uint8, np.uint16):
+        raise TypeError(f"image must be uint8 or uint16, got {img.dtype}")
+    if not cv2.imwrite(str(path), img):
+        raise OSError(f"could not write PNG to {path}")
+
+
+def write_json(path: str | os.PathLike, obj) -> None:
+    """Write ``obj`` as indented JSON (numpy arrays become lists)."""
+
+    def default(o):
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, np.generic):
+            return o.item()
+        raise TypeError(f"cannot write {type(o).__name__} as JSON")
+
+    Path(path).write_text(json.dumps(obj, indent=2, default=default) + "\n")

@@ -1,0 +1,68 @@
+"""Sample loads: element forces for demos and tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validate import positive
+from .errors import InputError
+from .sensor import DomeSensor
+
+__all__ = ["indenter_load"]
+
+
+def indenter_load(sensor: DomeSensor, *, polar_deg: float = 30.0, azimuth_deg: float = 40.0,
+                  peak: float = 0.8, width: float = 5.0, shear_ratio: float = 0.2,
+                  shear_azimuth_deg: float = 0.0, cutoff: float = 0.02) -> np.ndarray:
+    """Element-local forces of a rounded indenter pressed and dragged on the dome.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    polar_deg, azimuth_deg : float
+        Where the indenter's centre touches the dome (deg).
+    peak : float
+        Normal force on an element right under the centre (N), default 0.8.
+    width : float
+        Gaussian width of the normal-force distribution along the surface (mm).
+    shear_ratio : float
+        Shear as a fraction of each element's normal force (a friction-limited
+        drag), default 0.2.
+    shear_azimuth_deg : float
+        Drag direction: the global direction ``(cos a, sin a, 0)``, projected
+        onto each element's tangent plane (deg).
+    cutoff : float
+        Elements with less normal force than this (N) are left unloaded.
+
+    Returns
+    -------
+    (N, 3) ndarray
+        Element-local ``(Fx, Fy, Fz)`` in N.
+
+    Notes
+    -----
+    ``Fz_i = peak exp(-d_i^2 / (2 width^2))`` with ``d_i`` the geodesic
+    distance from the indenter centre to element ``i``; the shear is
+    ``shear_ratio Fz_i`` along the projected drag direction.
+    """
+    peak = positive(peak, "peak", allow_zero=True)
+    width = positive(width, "width")
+    shear_ratio = positive(shear_ratio, "shear_ratio", allow_zero=True)
+    cutoff = positive(cutoff, "cutoff", allow_zero=True)
+    if not 0.0 <= polar_deg < 90.0:
+        raise InputError(f"polar_deg must be in [0, 90), got {polar_deg}")
+    th, ph = np.radians(polar_deg), np.radians(azimuth_deg)
+    centre = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+    normals = sensor.element_frames[:, 2, :]
+    dist = sensor.outer_radius * np.arccos(np.clip(normals @ centre, -1.0, 1.0))
+    fz = peak * np.exp(-0.5 * (dist / width) ** 2)
+    fz[fz < cutoff] = 0.0
+    a = np.radians(shear_azimuth_deg)
+    drag = np.array([np.cos(a), np.sin(a), 0.0])
+    t = np.einsum("nij,j->ni", sensor.element_frames[:, :2, :], drag)  # local x, y components
+    norm = np.linalg.norm(t, axis=1, keepdims=True)
+    t = np.divide(t, norm, out=np.zeros_like(t), where=norm > 1e-12)
+    forces = np.zeros((sensor.n_elements, 3))
+    forces[:, :2] = shear_ratio * fz[:, None] * t
+    forces[:, 2] = fz
+    return forces
