@@ -92,11 +92,11 @@ class CCD:
     >>> import numpy as np
     >>> from optitact.ccd import CCD
     >>> ccd = CCD(bits=12)
-    >>> frame = ccd.expose(np.full((4, 5), 1.0), seed=0)
+    >>> frame = ccd.expose(np.full((4, 5), 0.2), seed=0)
     >>> frame.dtype, frame.shape
     (dtype('uint16'), (4, 5))
-    >>> print(round(float(ccd.mean_dn(np.ones((1, 1)))[0, 0]), 3))
-    822.2
+    >>> print(round(float(ccd.mean_dn(np.full((1, 1), 0.2))[0, 0]), 3))
+    1026.75
     """
 
     exposure: float = 25000.0

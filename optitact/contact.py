@@ -137,7 +137,7 @@ def _pressure_weights(target: np.ndarray, unit: np.ndarray) -> np.ndarray:
 
 
 def cone_loads(sensor: DomeSensor, forces) -> tuple[np.ndarray, np.ndarray]:
-    """Share each element's load among its conical feelers.
+    r"""Share each element's load among its conical feelers.
 
     Parameters
     ----------
@@ -160,7 +160,7 @@ def cone_loads(sensor: DomeSensor, forces) -> tuple[np.ndarray, np.ndarray]:
     moment balance of the feeler (load point a lever arm ``h`` above the cone
     tips) give
 
-    .. math:: \\sum_j P_j = F_z, \\qquad \\sum_j P_j r_j = h F_t .
+    .. math:: \sum_j P_j = F_z, \qquad \sum_j P_j r_j = h F_t .
 
     Dividing by ``F_z`` leaves the centre of pressure ``c = h F_t / F_z``;
     writing ``P_j = F_z w_j``, ``w_j = max(beta + b . r_j / rho, 0)^2`` (the
@@ -175,7 +175,7 @@ def cone_loads(sensor: DomeSensor, forces) -> tuple[np.ndarray, np.ndarray]:
     f = check_forces(forces, sensor)
     fz = f[:, 2] + sensor.preload
     loaded = fz > 0
-    n, k = sensor.n_elements, sensor.n_cones
+    n = sensor.n_elements
     rho = sensor.cone_circle_radius
     unit = sensor.cone_offsets / rho  # (K, 2)
 
@@ -192,7 +192,7 @@ def cone_loads(sensor: DomeSensor, forces) -> tuple[np.ndarray, np.ndarray]:
 
 
 def contact_patches(sensor: DomeSensor, forces) -> Contacts:
-    """Compute every conical feeler's contact patch on the dome.
+    r"""Compute every conical feeler's contact patch on the dome.
 
     Parameters
     ----------
@@ -209,12 +209,12 @@ def contact_patches(sensor: DomeSensor, forces) -> Contacts:
     Loads per cone come from :func:`cone_loads`. Sneddon's solution for a cone
     of semi-apex angle ``alpha`` on a flat gives a contact area linear in load,
 
-    .. math:: A_j = \\pi a_j^2 = 2 P_j \\tan\\alpha / E^*, \\qquad E^* = E / (1 - \\nu^2),
+    .. math:: A_j = \pi a_j^2 = 2 P_j \tan\alpha / E^*, \qquad E^* = E / (1 - \nu^2),
 
     capped at the cone's base area ``pi r_base^2`` (fully flattened:
     ``saturated``). The patches slide rigidly along the shear by
-    ``s = F_t / \\sum_j k_j`` with Mindlin's tangential stiffness of a circular
-    contact ``k_j = 8 G^* a_j``, ``G^* = G / (2 - \\nu)``. Patch centres are the
+    ``s = F_t / \sum_j k_j`` with Mindlin's tangential stiffness of a circular
+    contact ``k_j = 8 G^* a_j``, ``G^* = G / (2 - \nu)``. Patch centres are the
     cone offsets plus the slide, mapped onto the outer surface with
     :meth:`DomeSensor.dome_point`.
 

@@ -1,0 +1,143 @@
+"""CLI and forces-file tests (tiny renders)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+import optitact
+from optitact.cli import main
+from optitact.io import read_forces_csv, write_forces_csv
+from optitact.loads import indenter_load
+
+SENSOR = optitact.DomeSensor.default()
+TINY = ["--spp", "2", "--width", "64", "--height", "48"]
+
+
+def forces_file(tmp_path, text, name="f.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_forces_csv_round_trip(tmp_path):
+    f = np.random.default_rng(0).normal(size=(41, 3))
+    write_forces_csv(tmp_path / "f.csv", f)
+    np.testing.assert_array_equal(read_forces_csv(tmp_path / "f.csv", 41), f)
+
+
+def test_forces_csv_three_columns_comments_and_header(tmp_path):
+    rows = "\n".join(f"{i * 0.01},0,{i * 0.1}" for i in range(41))
+    p = forces_file(tmp_path, "# a comment\nfx,fy,fz\n\n" + rows + "\n")
+    f = read_forces_csv(p, 41)
+    np.testing.assert_allclose(f[:, 2], 0.1 * np.arange(41), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("text,exc,match", [
+    ("fx,fy,fz\n" + "0,0,1\n" * 40, ValueError, "expected 41 rows .* got 40"),
+    ("0,0\n" * 41, ValueError, "expected 3 columns"),
+    ("0,0,1\n" * 20 + "0,abc,1\n" + "0,0,1\n" * 20, ValueError, r"line 21, column 2: 'abc' is not a number"),
+    ("0,0,1\n" * 40 + "0,0,nan\n", ValueError, "is not finite"),
+    ("0,0,1\n" * 40 + "0,0\n", ValueError, "line 41: expected 3 columns, got 2"),
+    ("".join(f"{i + 1},0,0,1\n" for i in range(41)), ValueError, "element column must read 0"),
+    ("", ValueError, "got none"),
+])
+def test_forces_csv_errors(tmp_path, text, exc, match):
+    with pytest.raises(exc, match=match):
+        read_forces_csv(forces_file(tmp_path, text), 41)
+
+
+def test_render_command_writes_frame(tmp_path):
+    f = np.zeros((41, 3))
+    f[0, 2] = 1.0
+    write_forces_csv(tmp_path / "f.csv", f)
+    out = tmp_path / "frame.png"
+    rad = tmp_path / "rad.npy"
+    code = main(["render", "--forces", str(tmp_path / "f.csv"), "--out", str(out),
+                 "--radiance", str(rad), "--bits", "12", *TINY])
+    assert code == 0
+    frame = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert frame.shape == (48, 64) and frame.dtype == np.uint16
+    assert frame.max() <= 4095
+    assert np.load(rad).shape == (48, 64)
+
+
+@pytest.mark.parametrize("text,match", [
+    (None, "forces file not found"),
+    ("0,0,1\n" * 3, "expected 41 rows"),
+    ("0,x,1\n" * 41, "'x' is not a number"),
+])
+def test_render_command_bad_forces_file_exit_2(tmp_path, capsys, text, match):
+    path = tmp_path / "f.csv" if text is None else forces_file(tmp_path, text)
+    code = main(["render", "--forces", str(path), "--out", str(tmp_path / "o.png"), *TINY])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("optitact: error: ")
+    assert match in err[0]
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_demo_writes_its_folder(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), *TINY]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    meta = json.loads((out / "forces.json").read_text())
+    np.testing.assert_allclose(np.array(meta["forces_local_n"]), indenter_load(SENSOR),
+                               rtol=0, atol=1e-12)
+    assert meta["variant"] in ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
+    assert meta["spp"] == 2 and meta["seed"] == 0
+    frame = cv2.imread(str(out / "frame.png"), cv2.IMREAD_UNCHANGED)
+    assert frame.shape == (48, 64) and frame.dtype == np.uint8
+    assert cv2.imread(str(out / "overlay.png")).shape == (48, 64, 3)
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["demo", "--help"], ["render", "--help"]])
+def test_help(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 0
+    assert "usage: optitact" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["demo", "--spp", "0"], ["demo", "--seed", "-1"],
+                                  ["render", "--out", "x.png"], ["frobnicate"]])
+def test_bad_arguments_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+
+
+def test_console_script_is_installed():
+    r = subprocess.run([sys.executable, "-m", "optitact.cli", "--version"], capture_output=True,
+                       text=True, check=True)
+    assert r.stdout.strip() == f"optitact {optitact.__version__}"
+
+
+def test_import_is_light_and_top_level_names_are_not_installed(tmp_path):
+    code = (
+        "import sys, optitact\n"
+        "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
+        "import optitact.render, optitact.calib, optitact.forces\n"
+        "assert 'mitsuba' not in sys.modules\n"
+        "for name in ('render', 'calib', 'forces'):\n"
+        "    try:\n"
+        "        __import__(name)\n"
+        "    except ModuleNotFoundError:\n"
+        "        pass\n"
+        "    else:\n"
+        "        raise SystemExit(f'{name} is importable at top level')\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)
+
+
+def test_indenter_load_is_centred_and_friction_limited():
+    f = indenter_load(SENSOR, polar_deg=0.0, peak=0.5, shear_ratio=0.3)
+    assert f[0, 2] == pytest.approx(0.5, abs=1e-12)
+    assert np.all(f[:, 2] >= 0)
+    t = np.hypot(f[:, 0], f[:, 1])
+    np.testing.assert_allclose(t, 0.3 * f[:, 2], rtol=0, atol=1e-12)
