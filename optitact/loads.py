@@ -62,6 +62,7 @@ def indenter_load(sensor: DomeSensor, *, polar_deg: float = 30.0, azimuth_deg: f
     t = np.einsum("nij,j->ni", sensor.element_frames[:, :2, :], drag)  # local x, y components
     norm = np.linalg.norm(t, axis=1, keepdims=True)
     t = np.divide(t, norm, out=np.zeros_like(t), where=norm > 1e-12)
+    t[np.abs(t) < 1e-12] = 0.0  # exact zeros where the drag has no component
     forces = np.zeros((sensor.n_elements, 3))
     forces[:, :2] = shear_ratio * fz[:, None] * t
     forces[:, 2] = fz
