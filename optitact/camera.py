@@ -13,6 +13,7 @@ frame seen from below, not mirrored).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
 
@@ -58,13 +59,16 @@ class FisheyeCamera:
     z: float = -5.0
 
     def __post_init__(self) -> None:
-        integer(self.width, "width", minimum=2)
-        integer(self.height, "height", minimum=2)
-        positive(self.fov_deg, "fov_deg")
+        object.__setattr__(self, "width", integer(self.width, "width", minimum=2))
+        object.__setattr__(self, "height", integer(self.height, "height", minimum=2))
+        object.__setattr__(self, "fov_deg", positive(self.fov_deg, "fov_deg"))
         if self.fov_deg >= 360.0:
             raise InputError(f"fov_deg must be in (0, 360), got {self.fov_deg}")
-        if isinstance(self.z, bool) or not isinstance(self.z, (int, float)) or not math.isfinite(self.z):
-            raise InputError(f"z must be a finite number (mm), got {self.z!r}")
+        if isinstance(self.z, bool) or not isinstance(self.z, numbers.Real):
+            raise TypeError(f"z must be a real number (mm), got {type(self.z).__name__}")
+        if not math.isfinite(self.z):
+            raise InputError(f"z must be finite (mm), got {self.z!r}")
+        object.__setattr__(self, "z", float(self.z))
 
     def to_dict(self) -> dict:
         """Return the parameters as a JSON-friendly dict."""
@@ -73,6 +77,8 @@ class FisheyeCamera:
     @classmethod
     def from_dict(cls, d: dict) -> FisheyeCamera:
         """Build a camera from :meth:`to_dict` output; unknown keys are a ValueError."""
+        if not isinstance(d, dict):
+            raise TypeError(f"camera parameters must be a dict, got {type(d).__name__}")
         valid = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - valid)
         if unknown:

@@ -96,12 +96,14 @@ class DomeSensor:
     preload: float = field(default=0.0)
 
     def __post_init__(self) -> None:
+        # Store plain Python numbers, so that to_dict() is always JSON-ready.
         for name in ("outer_radius", "shell_thickness", "refractive_index", "column_diameter",
                      "lever_arm", "cone_circle_radius", "cone_apex_deg", "cone_base_radius",
                      "youngs_modulus"):
-            positive(getattr(self, name), name)
-        positive(self.preload, "preload", allow_zero=True)
-        positive(self.poisson_ratio, "poisson_ratio", allow_zero=True)
+            object.__setattr__(self, name, positive(getattr(self, name), name))
+        object.__setattr__(self, "preload", positive(self.preload, "preload", allow_zero=True))
+        object.__setattr__(self, "poisson_ratio",
+                           positive(self.poisson_ratio, "poisson_ratio", allow_zero=True))
         if self.poisson_ratio >= 0.5:
             raise InputError(f"poisson_ratio must be in [0, 0.5), got {self.poisson_ratio}")
         if self.shell_thickness >= self.outer_radius:
@@ -113,21 +115,22 @@ class DomeSensor:
             raise InputError(f"refractive_index must be > 1, got {self.refractive_index}")
         if self.cone_apex_deg >= 180.0:
             raise InputError(f"cone_apex_deg must be in (0, 180), got {self.cone_apex_deg}")
-        integer(self.n_cones, "n_cones", minimum=3)
+        object.__setattr__(self, "n_cones", integer(self.n_cones, "n_cones", minimum=3))
         counts = tuple(self.ring_counts)
         polars = tuple(self.ring_polar_deg)
-        object.__setattr__(self, "ring_counts", counts)
-        object.__setattr__(self, "ring_polar_deg", polars)
         if len(counts) == 0 or len(counts) != len(polars):
             raise InputError(
                 "ring_counts and ring_polar_deg must be non-empty and of equal length, "
                 f"got {len(counts)} and {len(polars)}"
             )
-        for i, (n, p) in enumerate(zip(counts, polars, strict=True)):
-            integer(n, f"ring_counts[{i}]", minimum=1)
-            pv = positive(p, f"ring_polar_deg[{i}]", allow_zero=True)
+        counts = tuple(integer(n, f"ring_counts[{i}]", minimum=1) for i, n in enumerate(counts))
+        polars = tuple(positive(p, f"ring_polar_deg[{i}]", allow_zero=True)
+                       for i, p in enumerate(polars))
+        object.__setattr__(self, "ring_counts", counts)
+        object.__setattr__(self, "ring_polar_deg", polars)
+        for i, (n, pv) in enumerate(zip(counts, polars, strict=True)):
             if pv >= 90.0:
-                raise InputError(f"ring_polar_deg[{i}] must be in [0, 90), got {p}")
+                raise InputError(f"ring_polar_deg[{i}] must be in [0, 90), got {pv}")
             if pv == 0.0 and n != 1:
                 raise InputError(f"a ring at polar angle 0 must hold 1 element, got {n}")
         if list(polars) != sorted(polars) or len(set(polars)) != len(polars):

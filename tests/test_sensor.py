@@ -329,7 +329,6 @@ def test_from_dict_partial_uses_defaults():
     assert s == DomeSensor(preload=0.1, ring_counts=(1, 8), ring_polar_deg=(0, 30))
 
 
-@pytest.mark.xfail(strict=True, reason="bug: to_dict keeps numpy scalars, not JSON-serialisable")
 def test_to_dict_json_friendly_with_numpy_inputs():
     s = DomeSensor(ring_counts=np.array([1, 8, 16, 16]), n_cones=np.int64(8),
                    outer_radius=np.float32(20.0))
