@@ -1,4 +1,4 @@
-"""Command-line interface: ``optitact demo`` and ``optitact render``.
+"""Command-line interface: ``optitact demo``, ``optitact render`` and ``optitact bench``.
 
 Messages and progress bars go to stderr; ``demo`` prints the folder it wrote
 on stdout. Bad input is a one-line ``optitact: error: ...`` and exit code 2.
@@ -86,6 +86,26 @@ def _parser() -> argparse.ArgumentParser:
     rend.add_argument("--radiance", type=Path, default=None, metavar="FILE.npy",
                       help="also save the noiseless float32 radiance image")
     _add_render_options(rend, spp=64)
+
+    bench = sub.add_parser(
+        "bench", help="benchmarks (time side by side with error)",
+        description="Benchmarks that report run time together with the error it buys; "
+                    "medians over repeats in one run. Output: one JSON object on stdout.")
+    bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    brender = bsub.add_parser(
+        "render", help="full-frame render time and Monte Carlo noise per spp",
+        description="Render the demo load at several spp, each several times with its own "
+                    "seed; report median time and the noise of spot pixels and of the summed "
+                    "spot radiance.")
+    brender.add_argument("--spp", type=_positive_int, nargs="+", default=[16, 64, 256],
+                         help="samples per pixel to measure (default 16 64 256)")
+    brender.add_argument("--repeats", type=_int_at_least(2, "an integer >= 2"), default=3,
+                         help="renders per spp (default 3)")
+    brender.add_argument("--width", type=_positive_int, default=640)
+    brender.add_argument("--height", type=_positive_int, default=480)
+    brender.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
+    brender.add_argument("--json", action="store_true",
+                         help="print only the JSON object (the default output is JSON too)")
     return parser
 
 
@@ -194,12 +214,23 @@ def _render(args) -> int:
     return 0
 
 
+def _bench(args) -> int:
+    import json
+
+    from .bench import bench_render
+
+    result = bench_render(tuple(args.spp), repeats=args.repeats, width=args.width,
+                          height=args.height, variant=args.variant)
+    print(json.dumps(result))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``optitact`` command; returns the exit code."""
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        return {"demo": _demo, "render": _render}[args.command](args)
+        return {"demo": _demo, "render": _render, "bench": _bench}[args.command](args)
     except (ValueError, TypeError, OSError) as exc:
         print(f"optitact: error: {exc}", file=sys.stderr)
         return 2

@@ -141,3 +141,19 @@ def test_indenter_load_is_centred_and_friction_limited():
     assert np.all(f[:, 2] >= 0)
     t = np.hypot(f[:, 0], f[:, 1])
     np.testing.assert_allclose(t, 0.3 * f[:, 2], rtol=0, atol=1e-12)
+
+
+def test_bench_render_json(capsys):
+    assert main(["bench", "render", "--spp", "1", "2", "--repeats", "2", "--width", "48",
+                 "--height", "36", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["size"] == "48x36" and set(out["spp"]) == {"1", "2"}
+    for row in out["spp"].values():
+        assert len(row["runs_s"]) == 2 and row["median_s"] > 0
+        assert 0 < row["spot_pixel_rel_noise"] < 10 and row["spot_sum_rel_spread"] >= 0
+
+
+def test_bench_needs_two_repeats(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "render", "--repeats", "1"])
+    assert e.value.code == 2
