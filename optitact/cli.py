@@ -153,9 +153,10 @@ def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contac
     if touching.any():
         idx = np.argwhere(touching)
         centre_px = camera.project(contacts.centers[touching], sensor)
-        rim = sensor.dome_point(idx[:, 0], sensor.cone_offsets[idx[:, 1]] + contacts.slide[idx[:, 0]]
-                                + np.stack([contacts.radii[touching], 0 * contacts.radii[touching]],
-                                           axis=1))
+        radii = contacts.radii[touching]
+        edge = np.stack([radii, np.zeros_like(radii)], axis=1)  # a point on each patch's rim
+        rim = sensor.dome_point(idx[:, 0], sensor.cone_offsets[idx[:, 1]]
+                                + contacts.slide[idx[:, 0]] + edge)
         rad_px = np.linalg.norm(camera.project(rim, sensor) - centre_px, axis=1)
         for rc, r in zip(centre_px, rad_px, strict=True):
             cv2.circle(out, pt(rc), max(int(round(r)), 1), (0, 200, 0), 1, cv2.LINE_AA)
