@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from ._validate import integer
 from .camera import FisheyeCamera
 from .loads import indenter_load
 from .sensor import DomeSensor
@@ -55,8 +56,8 @@ def bench_render(spps=(16, 64, 256), *, repeats: int = 3, width: int = 640, heig
 
     from .render import active_variant, render
 
-    if repeats < 2:
-        raise ValueError(f"repeats must be >= 2 to measure noise, got {repeats}")
+    repeats = integer(repeats, "repeats", minimum=2)
+    spps = tuple(integer(spp, "spps[]", minimum=1) for spp in spps)
     sensor = DomeSensor.default()
     camera = FisheyeCamera(width=width, height=height)
     forces = indenter_load(sensor)
