@@ -13,6 +13,8 @@ from .camera import FisheyeCamera, dome_from_pixel, pixel_from_dome
 from .ccd import CCD
 from .contact import Contacts, cone_loads, contact_patches
 from .errors import InputError, OptitactError, RenderError, ShapeError
+from .pipeline import Pipeline
+from .readings import Readings
 from .sensor import DomeSensor
 
 __version__ = "0.1.0"
@@ -24,6 +26,8 @@ __all__ = [
     "FisheyeCamera",
     "InputError",
     "OptitactError",
+    "Pipeline",
+    "Readings",
     "RenderError",
     "ShapeError",
     "cone_loads",

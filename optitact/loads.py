@@ -8,7 +8,7 @@ from ._validate import positive
 from .errors import InputError
 from .sensor import DomeSensor
 
-__all__ = ["indenter_load"]
+__all__ = ["indenter_load", "random_load"]
 
 
 def indenter_load(sensor: DomeSensor, *, polar_deg: float = 30.0, azimuth_deg: float = 40.0,
@@ -66,4 +66,46 @@ def indenter_load(sensor: DomeSensor, *, polar_deg: float = 30.0, azimuth_deg: f
     forces = np.zeros((sensor.n_elements, 3))
     forces[:, :2] = shear_ratio * fz[:, None] * t
     forces[:, 2] = fz
+    return forces
+
+
+def random_load(sensor: DomeSensor, *, fz_range: tuple[float, float] = (0.1, 1.0),
+                shear_ratio: float = 0.3, loaded: float = 1.0, seed: int | None = 0) -> np.ndarray:
+    """Independent random forces on the elements (element-local, N).
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    fz_range : (float, float)
+        Normal force of a loaded element, uniform in ``[lo, hi]`` (N).
+    shear_ratio : float
+        Shear magnitude uniform in ``[0, shear_ratio * Fz]`` in a uniform
+        random direction.
+    loaded : float
+        Fraction of elements loaded (each independently), default all.
+    seed : int or None
+        Seed of ``np.random.default_rng``.
+
+    Returns
+    -------
+    (N, 3) ndarray
+        ``(Fx, Fy, Fz)`` per element; unloaded elements are zero.
+    """
+    from ._validate import seed_value
+
+    lo, hi = (positive(v, "fz_range[]", allow_zero=True) for v in fz_range)
+    if not lo <= hi:
+        raise InputError(f"fz_range must be (lo, hi) with lo <= hi, got {fz_range!r}")
+    shear_ratio = positive(shear_ratio, "shear_ratio", allow_zero=True)
+    loaded = positive(loaded, "loaded", allow_zero=True)
+    if loaded > 1:
+        raise InputError(f"loaded must be a fraction in [0, 1], got {loaded}")
+    rng = np.random.default_rng(seed_value(seed))
+    n = sensor.n_elements
+    fz = rng.uniform(lo, hi, n)
+    mag = rng.uniform(0.0, shear_ratio, n) * fz
+    ang = rng.uniform(0.0, 2 * np.pi, n)
+    on = rng.random(n) < loaded
+    forces = np.stack([mag * np.cos(ang), mag * np.sin(ang), fz], axis=1)
+    forces[~on] = 0.0
     return forces

@@ -283,3 +283,39 @@ class DomeSensor:
         safe = np.where(s > 0, s, 1.0)
         direction = np.cos(ang) * frames[..., 2, :] + np.sin(ang) * t / safe
         return self.outer_radius * direction
+
+    def tangent_offset(self, element: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`dome_point`: tangent offsets (mm) of dome points around elements.
+
+        Parameters
+        ----------
+        element : (...) int array
+            Element indices.
+        points : (..., 3) array
+            Global points on (or radially projected onto) the outer surface.
+
+        Returns
+        -------
+        (..., 2) ndarray
+            Element-local ``(x, y)`` geodesic normal coordinates (mm): the
+            logarithmic map of the sphere at the element centre.
+
+        Notes
+        -----
+        With ``p`` the unit direction of the point and ``n`` the element
+        normal, ``a = atan2(|p - (p.n) n|, p.n)`` and the offset is
+        ``R a (p - (p.n) n) / |p - (p.n) n|`` expressed in the element's
+        tangent axes.
+        """
+        frames = self.element_frames[np.asarray(element)]
+        p = np.asarray(points, dtype=np.float64)
+        p = p / np.linalg.norm(p, axis=-1, keepdims=True)
+        n = frames[..., 2, :]
+        c = np.sum(p * n, axis=-1, keepdims=True)
+        t = p - c * n
+        s = np.linalg.norm(t, axis=-1, keepdims=True)
+        ang = np.arctan2(s, c)
+        scale = self.outer_radius * np.where(s > 0, ang / np.where(s > 0, s, 1.0), 1.0)
+        t = t * scale
+        return np.stack([np.sum(t * frames[..., 0, :], axis=-1),
+                         np.sum(t * frames[..., 1, :], axis=-1)], axis=-1)

@@ -1,0 +1,748 @@
+"""The frame pipeline: camera frames to per-element readings (G, u, contact, saturated).
+
+Steps, each a public function (the ``"reference"`` method runs them in turn):
+
+1. :func:`subtract_baseline` -- subtract the no-load frame, clip at zero;
+2. :func:`denoise` -- none, Gaussian or median filter;
+3. :func:`apply_threshold` -- zero every pixel at or below ``k`` sigma of the noise;
+4. :func:`split_regions` (once) and :func:`dewarp` -- resample the image onto
+   a fine grid of geodesic tangent coordinates around every element, with
+   the closed-form camera model; the grid cells carry their area on the
+   dome and their region (Voronoi cell of the element, cut at a radius);
+5. :func:`integrate` -- integrated grey value G and grey-value centroid per
+   region; :func:`readings_from_moments` turns them into :class:`Readings`
+   (no contact -> G = 0, u = 0).
+
+The ``"fast"`` method (default) computes the same sums with the linear
+stages folded into per-pixel weights: the bilinear dewarp weights times the
+cells' areas and coordinates, summed per (element, pixel). A frame then costs
+one comparison pass over the frame to find the lit pixels and a few weighted
+sums over those.
+
+Convention
+----------
+Images are ``(row, col)`` with the origin at the top-left pixel centre; grey
+levels are the frame's own units (DN for camera frames). Region grids use
+element-local tangent coordinates ``(x, y)`` in mm, geodesic normal
+coordinates around the element centre (``sensor.dome_point(e, (x, y))`` is
+the dome point of grid coordinate ``(x, y)``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from ._validate import integer, positive
+from .camera import FisheyeCamera, _radial_map
+from .errors import InputError, ShapeError
+from .readings import Readings
+from .sensor import DomeSensor
+
+__all__ = [
+    "Pipeline",
+    "RegionGrids",
+    "apply_threshold",
+    "check_frames",
+    "default_region_radius",
+    "denoise",
+    "dewarp",
+    "estimate_noise",
+    "integrate",
+    "readings_from_moments",
+    "split_regions",
+    "subtract_baseline",
+]
+
+FILTERS = ("none", "gaussian", "median")
+METHODS = ("fast", "reference")
+#: Margin (mm) added to the farthest reach of a cone's patch for the default region radius.
+REGION_MARGIN_MM = 0.5
+#: Grid cells per smallest pixel footprint in the default dewarp grid.
+OVERSAMPLE = 2.5
+#: Frames processed together by the fast method (bounds its temporary memory).
+CHUNK_FRAMES = 64
+
+
+# ---------------------------------------------------------------------------- input checks
+def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[np.ndarray, bool]:
+    """Validate a frame ``(H, W)`` or stack ``(T, H, W)`` for a camera.
+
+    Returns
+    -------
+    stack : (T, H, W) ndarray
+        The input as a stack (a view where possible; never modified).
+    single : bool
+        True when a single 2-D frame came in.
+
+    Raises
+    ------
+    TypeError
+        For a non-numeric, bool, complex or object dtype.
+    ShapeError
+        If the array is not 2-D or 3-D or its image size is not the camera's
+        ``(height, width)``.
+    InputError
+        For an empty stack, a NaN or infinite pixel, or a negative value in an
+        integer frame.
+    """
+    arr = np.asarray(frames)
+    if arr.dtype.kind not in "uif":
+        raise TypeError(f"{name} must have an unsigned/signed integer or float dtype "
+                        f"(uint8, uint16, float32, float64), got {arr.dtype}")
+    if arr.ndim not in (2, 3):
+        raise ShapeError(f"{name} must be a frame (H, W) or a stack (T, H, W), got shape {arr.shape}")
+    if arr.shape[-2:] != camera.shape:
+        raise ShapeError(f"{name} must be {camera.shape[0]}x{camera.shape[1]} (H, W) for this camera, "
+                         f"got {arr.shape[-2]}x{arr.shape[-1]}")
+    single = arr.ndim == 2
+    stack = arr[None] if single else arr
+    if stack.shape[0] == 0:
+        raise InputError(f"{name} is an empty stack (0 frames)")
+    if arr.dtype.kind == "f":
+        ok = np.isfinite(stack)
+        if not ok.all():
+            t, r, c = (int(i) for i in np.argwhere(~ok)[0])
+            raise InputError(f"{name} must be finite, got {stack[t, r, c]} at frame {t}, "
+                             f"pixel (row {r}, col {c})")
+    elif arr.dtype.kind == "i" and stack.size and stack.min() < 0:
+        t, r, c = (int(i) for i in np.argwhere(stack < 0)[0])
+        raise InputError(f"{name} must be non-negative grey levels, got {stack[t, r, c]} at "
+                         f"frame {t}, pixel (row {r}, col {c})")
+    return stack, single
+
+
+def _saturation_level(dtype: np.dtype, saturation: float | None) -> float:
+    if saturation is not None:
+        return saturation
+    if dtype.kind in "ui":
+        return float(np.iinfo(dtype).max)
+    return math.inf
+
+
+# ---------------------------------------------------------------------------- steps
+def subtract_baseline(frame, baseline=None) -> np.ndarray:
+    """Step 1: ``max(frame - baseline, 0)`` in float64 (a new array).
+
+    Parameters
+    ----------
+    frame : (H, W) array_like
+    baseline : (H, W) array_like or None
+        The no-load frame (for example the mean of the first frames of a
+        stream); None subtracts nothing.
+    """
+    img = np.asarray(frame, dtype=np.float64)
+    if baseline is None:
+        return np.maximum(img, 0.0)
+    b = np.asarray(baseline, dtype=np.float64)
+    if b.shape != img.shape:
+        raise ShapeError(f"baseline must have the frame's shape {img.shape}, got {b.shape}")
+    return np.maximum(img - b, 0.0)
+
+
+def _gaussian_kernel(size: float) -> np.ndarray:
+    import cv2
+
+    radius = max(1, math.ceil(3.0 * size))
+    return cv2.getGaussianKernel(2 * radius + 1, size, cv2.CV_64F).ravel()
+
+
+def filter_radius(method: str, size: float) -> int:
+    """Pixels on each side that a filter reads (0 for ``"none"``)."""
+    if method == "gaussian":
+        return (len(_gaussian_kernel(size)) - 1) // 2
+    if method == "median":
+        return int(size) // 2
+    return 0
+
+
+def denoise(image, *, method: str = "none", size: float = 1.0) -> np.ndarray:
+    """Step 2: denoise a float image (a new array).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+    method : {"none", "gaussian", "median"}
+        ``"gaussian"``: separable Gaussian of standard deviation ``size``
+        pixels, truncated at ``ceil(3 size)``; ``"median"``: median over a
+        ``size x size`` window (odd integer ``size``). Borders reflect
+        (``cv2.BORDER_REFLECT_101`` / ``mode="mirror"``).
+    size : float
+        The filter's size (see ``method``).
+    """
+    img = np.array(image, dtype=np.float64)
+    if method == "none":
+        return img
+    if method == "gaussian":
+        import cv2
+
+        k = _gaussian_kernel(size)
+        return cv2.sepFilter2D(img, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT_101)
+    if method == "median":
+        from scipy.ndimage import median_filter
+
+        return median_filter(img, size=int(size), mode="mirror")
+    raise InputError(f"filter must be one of {FILTERS}, got {method!r}")
+
+
+def apply_threshold(image, threshold: float) -> np.ndarray:
+    """Step 3: keep pixels above ``threshold``, zero the rest (a new float64 array)."""
+    img = np.asarray(image, dtype=np.float64)
+    return np.where(img > threshold, img, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class RegionGrids:
+    """The 41 element regions as fine grids on the dome, with their pixel maps.
+
+    Attributes
+    ----------
+    coords : (n,) ndarray
+        Cell-centre coordinates (mm) along each tangent axis; the same for x
+        and y, centred on the element centre.
+    grid_mm : float
+        Cell size (mm).
+    radius : float
+        Region radius (mm, geodesic).
+    pixels : (E, n, n, 2) ndarray
+        Pixel position ``(row, col)`` where each cell's dome point appears;
+        -10 for cells outside the region.
+    area : (E, n, n) ndarray
+        Each cell's area on the dome (mm^2), 0 outside the region.
+    mask : (E, n, n) bool ndarray
+        Cells of the region: within ``radius`` of the element centre, nearer
+        to it than to any other element centre, visible through the dome and
+        inside the image.
+    """
+
+    coords: np.ndarray
+    grid_mm: float
+    radius: float
+    pixels: np.ndarray
+    area: np.ndarray
+    mask: np.ndarray
+
+    @property
+    def n_elements(self) -> int:
+        """Number of regions."""
+        return self.mask.shape[0]
+
+
+def default_region_radius(sensor: DomeSensor) -> float:
+    """Farthest reach of a patch plus a margin, capped at half the closest element spacing (mm).
+
+    ``min(cone_circle_radius + cone_base_radius + REGION_MARGIN_MM, d_min / 2)``
+    where ``d_min`` is the smallest geodesic distance between element centres.
+    """
+    reach = sensor.cone_circle_radius + sensor.cone_base_radius + REGION_MARGIN_MM
+    n = sensor.element_frames[:, 2, :]
+    if len(n) < 2:
+        return reach
+    cos = np.clip(n @ n.T, -1.0, 1.0)
+    np.fill_diagonal(cos, -1.0)
+    d_min = sensor.outer_radius * float(np.arccos(cos.max()))
+    return min(reach, 0.5 * d_min)
+
+
+def _smallest_footprint(sensor: DomeSensor, camera: FisheyeCamera, radius: float) -> float:
+    """Smallest dome length (mm) one pixel spans, over points in the regions."""
+    ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    ring = np.concatenate([[[0.0, 0.0]], radius * np.stack([np.cos(ang), np.sin(ang)], 1)])
+    e = np.repeat(np.arange(sensor.n_elements), len(ring))
+    pts = sensor.dome_point(e, np.tile(ring, (sensor.n_elements, 1)))
+    theta = np.arccos(np.clip(pts[:, 2] / sensor.outer_radius, -1, 1))
+    pts = pts[theta <= _radial_map(sensor, camera.z).theta_max]
+    px = camera.project(pts, sensor)
+    h = 1e-3
+    d0 = camera.unproject(px, sensor, outside="nan")
+    jr = (camera.unproject(px + [h, 0], sensor, outside="nan") - d0) / h
+    jc = (camera.unproject(px + [0, h], sensor, outside="nan") - d0) / h
+    s = np.linalg.svd(np.stack([jr, jc], axis=-1), compute_uv=False)  # (n, 2)
+    s = s[np.isfinite(s).all(axis=1)]
+    if s.size == 0:
+        raise InputError("no element region is visible to this camera")
+    return float(s[:, 1].min())
+
+
+@lru_cache(maxsize=8)
+def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | None = None,
+                  grid_mm: float | None = None) -> RegionGrids:
+    """Step 4a (once per sensor and camera): the element regions as dome grids.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    camera : FisheyeCamera
+    radius : float, optional
+        Region radius (mm, geodesic); default :func:`default_region_radius`.
+        Cells nearer to another element's centre belong to that element
+        (Voronoi), so regions never overlap.
+    grid_mm : float, optional
+        Cell size (mm); default the smallest pixel footprint in the regions
+        divided by ``OVERSAMPLE`` (2.5), so the bilinear dewarp never skips a
+        pixel.
+
+    Returns
+    -------
+    RegionGrids
+
+    Notes
+    -----
+    Cell ``(i, j)`` of element ``e`` is the dome point
+    ``sensor.dome_point(e, (coords[j], coords[i]))`` (x along columns, y
+    along rows of the grid); its area on the sphere is
+    ``grid_mm^2 sin(rho/R) / (rho/R)`` with ``rho`` its geodesic distance from
+    the centre (the area element of geodesic normal coordinates).
+    """
+    radius = default_region_radius(sensor) if radius is None else positive(radius, "radius")
+    if grid_mm is None:
+        grid_mm = _smallest_footprint(sensor, camera, radius) / OVERSAMPLE
+    grid_mm = positive(grid_mm, "grid_mm")
+    half = math.ceil(radius / grid_mm)
+    if 2 * half + 1 > 2001:
+        raise InputError(f"grid_mm={grid_mm} is too fine for radius={radius} "
+                         f"({2 * half + 1} cells per side; at most 2001)")
+    coords = (np.arange(2 * half + 1) - half) * grid_mm
+    gx, gy = np.meshgrid(coords, coords)  # x along columns, y along rows
+    offsets = np.stack([gx, gy], axis=-1)
+    rho = np.hypot(gx, gy)
+    n_el = sensor.n_elements
+    r_out = sensor.outer_radius
+    pts = sensor.dome_point(np.arange(n_el)[:, None, None], offsets[None])  # (E, n, n, 3)
+    normals = sensor.element_frames[:, 2, :]
+    nearest = np.argmax(np.einsum("eijk,fk->eijf", pts, normals), axis=-1)
+    theta = np.arccos(np.clip(pts[..., 2] / r_out, -1.0, 1.0))
+    mask = ((rho <= radius)[None] & (nearest == np.arange(n_el)[:, None, None])
+            & (theta <= _radial_map(sensor, camera.z).theta_max))
+    pixels = np.full(mask.shape + (2,), -10.0)
+    pixels[mask] = camera.project(pts[mask], sensor)
+    h, w = camera.shape
+    inside = ((pixels[..., 0] >= 0) & (pixels[..., 0] <= h - 1)
+              & (pixels[..., 1] >= 0) & (pixels[..., 1] <= w - 1))
+    mask &= inside
+    pixels[~mask] = -10.0
+    x = rho / r_out
+    area = grid_mm**2 * np.where(x > 0, np.sin(x) / np.where(x > 0, x, 1.0), 1.0)
+    area = np.where(mask, area[None], 0.0)
+    for arr in (coords, pixels, area, mask):
+        arr.flags.writeable = False
+    return RegionGrids(coords, float(grid_mm), float(radius), pixels, area, mask)
+
+
+def dewarp(image, grids: RegionGrids) -> np.ndarray:
+    """Step 4b: resample an image onto every region's dome grid, ``(E, n, n)`` float64.
+
+    Bilinear interpolation (``scipy.ndimage.map_coordinates``, order 1, exact
+    weights) at each cell's pixel position; cells outside a region read 0.
+    """
+    from scipy.ndimage import map_coordinates
+
+    img = np.asarray(image, dtype=np.float64)
+    n = len(grids.coords)
+    out = np.zeros((grids.n_elements, n, n))
+    for e in range(grids.n_elements):
+        cells = grids.mask[e]
+        rc = grids.pixels[e][cells]
+        out[e][cells] = map_coordinates(img, rc.T, order=1, mode="constant", cval=0.0,
+                                        prefilter=False)
+    return out
+
+
+def integrate(patches, grids: RegionGrids) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5: integrated grey value and first moments of every region.
+
+    Parameters
+    ----------
+    patches : (E, n, n) array_like
+        Dewarped grey values (:func:`dewarp`).
+    grids : RegionGrids
+
+    Returns
+    -------
+    G : (E,) ndarray
+        ``sum(value * area)`` over the region's cells (grey level x mm^2).
+    M : (E, 2) ndarray
+        ``sum(value * area * (x, y))``: the first moments; the centroid is
+        ``M / G``.
+    """
+    p = np.asarray(patches, dtype=np.float64)
+    wa = p * grids.area
+    g = wa.sum(axis=(1, 2))
+    mx = (wa.sum(axis=1) * grids.coords).sum(axis=1)
+    my = (wa.sum(axis=2) * grids.coords).sum(axis=1)
+    return g, np.stack([mx, my], axis=-1)
+
+
+def readings_from_moments(G, M, saturated, floor) -> Readings:
+    """Turn integrated values and moments into readings.
+
+    A region is in contact when ``G > floor``; then ``u = M / G``. Regions
+    not in contact read ``G = 0``, ``u = (0, 0)`` (never NaN).
+    """
+    g = np.asarray(G, dtype=np.float64)
+    m = np.asarray(M, dtype=np.float64)
+    contact = g > floor
+    g = np.where(contact, g, 0.0)
+    u = np.divide(m, g[..., None], out=np.zeros(m.shape), where=contact[..., None])
+    return Readings(g, u, contact, np.asarray(saturated, dtype=bool))
+
+
+def estimate_noise(frames) -> float:
+    """Temporal noise (grey levels, rms) of a no-load stack ``(T, H, W)``, ``T >= 2``.
+
+    The square root of the mean over pixels of the per-pixel sample variance.
+    """
+    arr = np.asarray(frames)
+    if arr.ndim != 3 or arr.shape[0] < 2:
+        raise ShapeError(f"estimate_noise needs a stack (T, H, W) with T >= 2, got {arr.shape}")
+    if arr.dtype.kind not in "uif":
+        raise TypeError(f"frames must be a real numeric stack, got dtype {arr.dtype}")
+    var = arr.astype(np.float64).var(axis=0, ddof=1)
+    if not np.isfinite(var).all():
+        raise InputError("frames must be finite")
+    return float(np.sqrt(var.mean()))
+
+
+# ---------------------------------------------------------------------------- the fold
+@dataclass(frozen=True, eq=False)
+class _Fold:
+    """Per-(element, pixel) weights: the dewarp, areas and coordinates folded together.
+
+    Entries are sorted by element, then pixel; a pixel feeding two regions
+    (only possible where regions touch) has one entry in each.
+    """
+
+    pixel: np.ndarray      # (n_entries,) flat pixel index (row * W + col)
+    starts: np.ndarray     # (E,) first entry of each element (entries of e: starts[e]:starts[e+1])
+    weights: np.ndarray    # (n_entries, 3): dome area (mm^2) the pixel gives its region,
+                           # area * x and area * y (mm^3)
+    pixel_area: np.ndarray  # (E,) mean dome area (mm^2) per footprint pixel of each region
+
+    @property
+    def label(self) -> np.ndarray:
+        """Element of each entry."""
+        return np.repeat(np.arange(len(self.starts)), np.diff(np.append(self.starts,
+                                                                         len(self.pixel))))
+
+
+@lru_cache(maxsize=8)
+def _fold(grids: RegionGrids, shape: tuple[int, int]) -> _Fold:
+    """Fold bilinear dewarp weights, cell areas and cell coordinates into per-pixel weights.
+
+    ``W_e(p) = sum over cells c of region e of B(c, p) * area(c) * (1, x_c, y_c)``,
+    with ``B(c, p)`` the bilinear weight of pixel ``p`` at cell ``c``'s pixel
+    position, so that ``sum_c dewarp(I)(c) area(c) (1, x, y) = sum_p W_e(p) I(p)``.
+    """
+    h, w = shape
+    e_idx, i_idx, j_idx = np.nonzero(grids.mask)
+    rc = grids.pixels[e_idx, i_idx, j_idx]
+    a = grids.area[e_idx, i_idx, j_idx]
+    x, y = grids.coords[j_idx], grids.coords[i_idx]
+    r0 = np.minimum(np.floor(rc[:, 0]).astype(np.int64), h - 2)
+    c0 = np.minimum(np.floor(rc[:, 1]).astype(np.int64), w - 2)
+    fr, fc = rc[:, 0] - r0, rc[:, 1] - c0
+    pix, ele, bw = [], [], []
+    for dr, dc, wt in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                       (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        keep = wt > 0
+        pix.append((r0[keep] + dr) * w + c0[keep] + dc)
+        ele.append(e_idx[keep])
+        bw.append(np.stack([wt * a, wt * a * x, wt * a * y])[:, keep])
+    pix, ele, bw = np.concatenate(pix), np.concatenate(ele), np.concatenate(bw, axis=1)
+    n_el = grids.n_elements
+    keys, inverse = np.unique(ele * (h * w) + pix, return_inverse=True)
+    weights = np.stack([np.bincount(inverse, bw[k], minlength=len(keys)) for k in range(3)], axis=1)
+    label, pixel = np.divmod(keys, h * w)
+    starts = np.searchsorted(label, np.arange(n_el))
+    n_pix = np.bincount(label, minlength=n_el)
+    region_area = np.bincount(label, weights[:, 0], minlength=n_el)
+    pixel_area = np.divide(region_area, n_pix, out=np.zeros(n_el), where=n_pix > 0)
+    pixel = pixel.astype(np.intp)
+    for arr in (pixel, starts, weights, pixel_area):
+        arr.flags.writeable = False
+    return _Fold(pixel, starts, weights, pixel_area)
+
+
+def _segment_sums(values: np.ndarray, idx: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Row sums of ``values`` over the runs of sorted positions ``idx`` split at ``bounds``.
+
+    ``out[k] = values[(idx >= bounds[k]) & (idx < bounds[k + 1])].sum(axis=0)``
+    (the last run ends at infinity); empty runs give 0. ``values`` has one
+    spare zero row at the end (``len(values) == len(idx) + 1``) so that
+    ``np.add.reduceat`` can index one past the last lit entry.
+    """
+    seg = np.searchsorted(idx, bounds)
+    out = np.add.reduceat(values, seg, axis=0)
+    out[seg == np.append(seg[1:], len(idx))] = 0.0
+    return out
+
+
+# ---------------------------------------------------------------------------- the pipeline
+class Pipeline:
+    """Frames to readings for one sensor and camera; precomputes once, then processes fast.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    camera : FisheyeCamera
+    method : {"fast", "reference"}
+        ``"fast"`` (default): the folded per-pixel weights; ``"reference"``:
+        the steps one after another on the whole frame. They compute the
+        same sums and agree to floating-point rounding.
+    baseline : (H, W) or (T, H, W) array_like, optional
+        No-load frame (a stack is averaged); None subtracts nothing (for
+        frames that are already background-free). See :meth:`with_baseline`.
+    filter : {"none", "gaussian", "median"}
+        Denoising before the threshold, default ``"none"``.
+    filter_size : float
+        Gaussian sigma in pixels (default 1.0) or the median window (odd
+        integer, default 3 when ``filter="median"``).
+    noise_sigma : float
+        Noise of ``frame - baseline`` per pixel, in grey levels, default 0.5
+        (an 8-bit camera whose noise is mostly quantisation); use
+        :func:`estimate_noise` or :meth:`from_noload` for your camera, and 0
+        for noiseless frames.
+    k : float
+        Threshold in noise sigmas, default 3: pixels at or below
+        ``k * sigma_f`` (``sigma_f``: ``noise_sigma`` after the filter, i.e.
+        times the Gaussian kernel's L2 norm) count as dark.
+    min_pixels : float
+        Contact needs ``G`` above what ``min_pixels`` pixels just at the
+        threshold would give (the region's noise floor), default 3.
+    saturation : float, optional
+        Grey level at which a pixel is saturated; default the integer dtype's
+        maximum (255, 65535), none for float frames.
+    radius, grid_mm : float, optional
+        Region radius and dewarp cell size (mm); see :func:`split_regions`.
+
+    Examples
+    --------
+    >>> import numpy as np, optitact
+    >>> s, cam = optitact.DomeSensor.default(), optitact.FisheyeCamera(width=160, height=120)
+    >>> pipe = optitact.Pipeline(s, cam)
+    >>> r = pipe.process(np.zeros(cam.shape, np.uint8))
+    >>> r.G.shape, bool(r.contact.any())
+    ((41,), False)
+    """
+
+    def __init__(self, sensor: DomeSensor, camera: FisheyeCamera, *, method: str = "fast",
+                 baseline=None, filter: str = "none", filter_size: float | None = None,
+                 noise_sigma: float = 0.5, k: float = 3.0, min_pixels: float = 3.0,
+                 saturation: float | None = None, radius: float | None = None,
+                 grid_mm: float | None = None) -> None:
+        if not isinstance(sensor, DomeSensor):
+            raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
+        if not isinstance(camera, FisheyeCamera):
+            raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+        if method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {method!r}")
+        if filter not in FILTERS:
+            raise InputError(f"filter must be one of {FILTERS}, got {filter!r}")
+        if filter_size is None:
+            filter_size = 3 if filter == "median" else 1.0
+        if filter == "median":
+            filter_size = integer(filter_size, "filter_size", minimum=1)
+            if filter_size % 2 == 0:
+                raise InputError(f"filter_size of a median must be odd, got {filter_size}")
+        else:
+            filter_size = positive(filter_size, "filter_size")
+        self.sensor, self.camera, self.method = sensor, camera, method
+        self.filter, self.filter_size = filter, filter_size
+        self.noise_sigma = positive(noise_sigma, "noise_sigma", allow_zero=True)
+        self.k = positive(k, "k", allow_zero=True)
+        self.min_pixels = positive(min_pixels, "min_pixels", allow_zero=True)
+        self.saturation = None if saturation is None else positive(saturation, "saturation")
+        # A separable Gaussian k (x) k scales white noise by its L2 norm, sum(k**2).
+        gain = float(np.sum(_gaussian_kernel(filter_size) ** 2)) if filter == "gaussian" else 1.0
+        #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is dark.
+        self.threshold = self.k * self.noise_sigma * gain
+        self.grids = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
+        self._fold = _fold(self.grids, camera.shape)
+        #: Per-region noise floor of G (grey level x mm^2).
+        self.floor = self.min_pixels * self.threshold * self._fold.pixel_area
+        self.baseline = None if baseline is None else self._check_baseline(baseline)
+        self._levels: dict = {}
+        self._base_entries = (np.zeros(len(self._fold.pixel)) if self.baseline is None
+                              else self.baseline.reshape(-1)[self._fold.pixel])
+
+    # ------------------------------------------------------------------ set-up
+    def _check_baseline(self, baseline) -> np.ndarray:
+        stack, _ = check_frames(baseline, self.camera, "baseline")
+        b = stack.astype(np.float64).mean(axis=0)
+        b.flags.writeable = False
+        return b
+
+    def _options(self) -> dict:
+        return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
+                    noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
+                    saturation=self.saturation, radius=self.grids.radius,
+                    grid_mm=self.grids.grid_mm)
+
+    def replace(self, **changes) -> Pipeline:
+        """A pipeline with some options changed (the geometry is shared when unchanged)."""
+        opts = self._options() | {"baseline": self.baseline} | changes
+        return Pipeline(self.sensor, self.camera, **opts)
+
+    def with_baseline(self, frames) -> Pipeline:
+        """The same pipeline with ``frames`` (a frame or the mean of a stack) as no-load baseline."""
+        return self.replace(baseline=frames)
+
+    @classmethod
+    def from_noload(cls, sensor: DomeSensor, camera: FisheyeCamera, frames, **options) -> Pipeline:
+        """A pipeline whose baseline and noise come from a no-load stack ``(T, H, W)``, T >= 2.
+
+        The baseline is the stack's mean; ``noise_sigma`` is
+        ``estimate_noise(frames) * sqrt(1 + 1/T)``, the noise of a frame minus
+        that mean.
+        """
+        stack, _ = check_frames(frames, camera, "frames")
+        sigma = estimate_noise(stack) * math.sqrt(1.0 + 1.0 / stack.shape[0])
+        return cls(sensor, camera, baseline=stack, noise_sigma=sigma, **options)
+
+    # ------------------------------------------------------------------ processing
+    def process(self, frames) -> Readings:
+        """Readings of a frame ``(H, W)`` or of every frame of a stack ``(T, H, W)``.
+
+        Raises
+        ------
+        TypeError, ShapeError, InputError
+            See :func:`check_frames`.
+        """
+        stack, single = check_frames(frames, self.camera)
+        if self.method == "reference":
+            out = Readings.stack([self._reference(f) for f in stack])
+        else:
+            parts = [self._fast(stack[i:i + CHUNK_FRAMES])
+                     for i in range(0, len(stack), CHUNK_FRAMES)]
+            out = parts[0] if len(parts) == 1 else Readings.stack(parts)
+        return Readings(out.G[0], out.u[0], out.contact[0], out.saturated[0]) if single else out
+
+    def stream(self, frames, *, baseline_frames: int = 0):
+        """Yield readings frame by frame from an iterable of frames.
+
+        Parameters
+        ----------
+        frames : iterable of (H, W) arrays
+        baseline_frames : int
+            When > 0, the mean of the first ``baseline_frames`` frames becomes
+            the no-load baseline; readings are yielded for every frame,
+            those first ones included.
+        """
+        baseline_frames = integer(baseline_frames, "baseline_frames", minimum=0)
+        pipe, held = self, []
+        for frame in frames:
+            if len(held) < baseline_frames:
+                held.append(np.array(frame))
+                if len(held) == baseline_frames:
+                    pipe = self.with_baseline(np.stack(held))
+                    yield from pipe.process(np.stack(held))
+                continue
+            yield pipe.process(frame)
+        if 0 < len(held) < baseline_frames:
+            raise InputError(f"the stream ended after {len(held)} frames, before the "
+                             f"{baseline_frames} baseline frames")
+
+    # ------------------------------------------------------------------ the two methods
+    def _reference(self, frame: np.ndarray) -> Readings:
+        img = subtract_baseline(frame, self.baseline)
+        img = denoise(img, method=self.filter, size=self.filter_size)
+        img = apply_threshold(img, self.threshold)
+        g, m = integrate(dewarp(img, self.grids), self.grids)
+        level = _saturation_level(frame.dtype, self.saturation)
+        hot = dewarp((frame >= level).astype(np.float64), self.grids)
+        return readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor)
+
+    def _level(self, dtype: np.dtype):
+        """Lit level per region entry for frames of ``dtype``, and the entries to watch for saturation.
+
+        An entry is lit when ``frame > level``: for integer frames ``level =
+        floor(baseline + threshold)`` in the frame's dtype (exact for integer
+        grey levels); for float frames ``level = baseline + threshold``, which
+        matches the reference's ``frame - baseline > threshold`` up to
+        rounding at the threshold itself. Entries whose level reaches the
+        saturation level cannot show saturation by being lit; they are
+        watched separately.
+        """
+        key = dtype.str
+        if key not in self._levels:
+            b = self._base_entries
+            sat = _saturation_level(dtype, self.saturation)
+            if dtype.kind in "ui":
+                top = np.iinfo(dtype).max
+                level = np.clip(np.floor(b + self.threshold), 0, top).astype(dtype)
+            else:
+                level = (b + self.threshold).astype(dtype)
+                if dtype != np.float64:  # round up so no value at or below the float64 level passes
+                    low = level.astype(np.float64) < b + self.threshold
+                    level[low] = np.nextafter(level[low], np.inf)
+            if math.isinf(sat):
+                watch = np.zeros(0, np.intp)
+            else:
+                watch = np.flatnonzero(b + self.threshold >= sat - 1e-9 * max(1.0, sat))
+            self._levels[key] = (level, watch, sat)
+        return self._levels[key]
+
+    def _fast(self, stack: np.ndarray) -> Readings:
+        """The folded sums over the lit entries of a stack (readings ``(T, E)``).
+
+        Only the pixels of the regions are read (gathered in element order);
+        the lit ones (above the level) are weighted and summed per element
+        with ``np.add.reduceat``, so dark regions cost nothing more.
+        """
+        t_n = stack.shape[0]
+        fold = self._fold
+        n_ent, n_el = len(fold.pixel), self.grids.n_elements
+        level, watch, sat = self._level(stack.dtype)
+        flat = stack.reshape(t_n, -1)
+        if self.filter == "none":
+            # (T, n_entries) grey values of the region pixels, element-major
+            g = flat[0][fold.pixel][None] if t_n == 1 else np.take(flat, fold.pixel, axis=1)
+            idx = np.flatnonzero(g > level)
+            e = idx if t_n == 1 else idx % n_ent
+            raw = g.reshape(-1)[idx]
+            v = raw - np.take(self._base_entries, e)
+            hot = idx[raw >= sat]
+            if watch.size:
+                wt, wi = np.nonzero(g[:, watch] >= sat)
+                hot = np.concatenate([hot, wt * n_ent + watch[wi]])
+        else:
+            idx, v, hot = self._filtered_lit(flat)
+            e = idx % n_ent
+        bounds = fold.starts if t_n == 1 else (np.arange(t_n)[:, None] * n_ent
+                                               + fold.starts).reshape(-1)
+        vals = np.empty((len(idx) + 1, 3))  # area, area * x, area * y, times the grey value
+        np.multiply(np.take(fold.weights, e, axis=0), v[:, None], out=vals[:-1])
+        vals[-1] = 0.0
+        sums = _segment_sums(vals, idx, bounds)
+        g_sum, m = sums[:, 0], sums[:, 1:]
+        saturated = np.zeros(t_n * n_el, bool)
+        if hot.size:
+            saturated[np.searchsorted(bounds, hot, side="right") - 1] = True
+        return readings_from_moments(g_sum.reshape(t_n, n_el), m.reshape(t_n, n_el, 2),
+                                     saturated.reshape(t_n, n_el), self.floor)
+
+    def _filtered_lit(self, flat: np.ndarray):
+        """Lit entries after the filter, computed on the crop that holds the regions plus the filter's reach."""
+        h, w = self.camera.shape
+        fold = self._fold
+        n_ent = len(fold.pixel)
+        rows, cols = np.divmod(fold.pixel, w)
+        pad = filter_radius(self.filter, self.filter_size)
+        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, h)
+        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, w)
+        local = (rows - r0) * (c1 - c0) + cols - c0
+        base = None if self.baseline is None else self.baseline[r0:r1, c0:c1]
+        sat = _saturation_level(flat.dtype, self.saturation)
+        idx, v, hot = [], [], []
+        for i, frame in enumerate(flat):
+            crop = frame.reshape(h, w)[r0:r1, c0:c1]
+            img = denoise(subtract_baseline(crop, base), method=self.filter, size=self.filter_size)
+            vals = np.take(img, local)
+            lit = np.flatnonzero(vals > self.threshold)
+            idx.append(i * n_ent + lit)
+            v.append(vals[lit])
+            hot.append(i * n_ent + np.flatnonzero(np.take(crop, local) >= sat))
+        return np.concatenate(idx), np.concatenate(v), np.concatenate(hot)
