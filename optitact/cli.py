@@ -1,4 +1,4 @@
-"""Command-line interface: ``optitact demo``, ``optitact render`` and ``optitact bench``.
+"""Command-line interface: ``optitact demo``, ``render``, ``process`` and ``bench``.
 
 Messages and progress bars go to stderr; ``demo`` prints the folder it wrote
 on stdout. Bad input is a one-line ``optitact: error: ...`` and exit code 2.
@@ -87,6 +87,47 @@ def _parser() -> argparse.ArgumentParser:
                       help="also save the noiseless float32 radiance image")
     _add_render_options(rend, spp=64)
 
+    proc = sub.add_parser(
+        "process", help="camera frames -> per-element readings CSV (G, u, contact)",
+        description="Process camera frames of the dome into per-element readings: integrated "
+                    "grey value G (grey level x mm^2 on the dome), centroid shift u (mm, "
+                    "element-local x, y), contact and saturation flags; one CSV row per frame "
+                    "and element. FRAMES are image files (PNG/TIFF/..., 8 or 16 bit), folders "
+                    "of them (sorted by name), .npy frames or stacks, or videos (OpenCV); colour "
+                    "is converted to grey. The no-load baseline is --baseline, or else the mean "
+                    "of the first --baseline-frames frames (default 1: the stream must start "
+                    "unloaded).")
+    proc.add_argument("frames", nargs="+", type=Path, metavar="FRAMES",
+                      help="image files, folders, .npy stacks or video files")
+    proc.add_argument("--out", type=Path, required=True, metavar="READINGS.csv",
+                      help="where to write the readings")
+    proc.add_argument("--baseline", type=Path, default=None, metavar="FRAME",
+                      help="no-load frame (image or .npy; a .npy stack is averaged)")
+    proc.add_argument("--baseline-frames", type=_int_at_least(0, "an integer >= 0"), default=1,
+                      help="without --baseline: average this many first frames as the no-load "
+                           "baseline (default 1; 0 subtracts nothing)")
+    proc.add_argument("--setup", type=Path, default=None, metavar="FILE.json",
+                      help="JSON holding 'sensor' and 'camera' parameters (e.g. the forces.json "
+                           "that optitact demo writes); default: the default dome and a fisheye "
+                           "camera of the frames' size")
+    proc.add_argument("--fov", type=float, default=140.0,
+                      help="without --setup: camera field of view across the shorter side (deg, "
+                           "default 140)")
+    proc.add_argument("--camera-z", type=float, default=-5.0,
+                      help="without --setup: camera height on the dome axis (mm, default -5)")
+    proc.add_argument("--method", choices=("fast", "reference"), default="fast",
+                      help="fast (default) or the step-by-step reference")
+    proc.add_argument("--filter", choices=("none", "gaussian", "median"), default="none",
+                      help="denoising before the threshold (default none)")
+    proc.add_argument("--filter-size", type=float, default=None,
+                      help="Gaussian sigma in pixels (default 1) or median window (default 3)")
+    proc.add_argument("--noise-sigma", type=float, default=0.5,
+                      help="noise of frame - baseline per pixel, grey levels (default 0.5)")
+    proc.add_argument("--k", type=float, default=3.0,
+                      help="threshold in noise sigmas (default 3)")
+    proc.add_argument("--batch", type=_positive_int, default=32,
+                      help="frames processed together (default 32)")
+
     bench = sub.add_parser(
         "bench", help="benchmarks (time side by side with error)",
         description="Benchmarks that report run time together with the error it buys; "
@@ -106,7 +147,34 @@ def _parser() -> argparse.ArgumentParser:
     brender.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
     brender.add_argument("--json", action="store_true",
                          help="print only the JSON object (the default output is JSON too)")
+    bpipe = bsub.add_parser(
+        "pipeline", help="frames/s of the fast and reference pipelines vs one pass over the frame",
+        description="Render (once, then cached in the user cache folder) a frame with all 41 "
+                    "elements loaded at each size, expose it with several noise seeds, and time "
+                    "the fast pipeline frame by frame and as a batch, the reference pipeline, and "
+                    "one pass over the frame (np.count_nonzero(frame > t)), side by side in each "
+                    "repeat; report medians and the fast-vs-reference differences.")
+    bpipe.add_argument("--size", nargs="+", default=["640x480", "480x480"], metavar="WxH",
+                       help="frame sizes (default 640x480 480x480)")
+    bpipe.add_argument("--frames", type=_positive_int, default=16,
+                       help="distinct noisy frames per size (default 16)")
+    bpipe.add_argument("--repeats", type=_positive_int, default=5,
+                       help="timing repeats; medians are reported (default 5)")
+    bpipe.add_argument("--spp", type=_positive_int, default=64,
+                       help="samples per pixel of the renders (default 64)")
+    bpipe.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    bpipe.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
+    bpipe.add_argument("--json", action="store_true",
+                       help="print only the JSON object (the default output is JSON too)")
     return parser
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size must look like 640x480 (WIDTHxHEIGHT), got {text!r}") from None
+    return w, h
 
 
 def _render_frame(sensor: DomeSensor, forces: np.ndarray, args) -> dict:
@@ -215,13 +283,97 @@ def _render(args) -> int:
     return 0
 
 
+def _load_baseline(path: Path) -> np.ndarray:
+    from .frames import expand_sources, iter_frames
+
+    frames = [f for _, f in iter_frames(expand_sources([path]))]
+    return np.stack(frames)
+
+
+def _process(args) -> int:
+    from tqdm import tqdm
+
+    from .frames import count_frames, expand_sources, iter_frames
+    from .io import ReadingsWriter
+    from .pipeline import Pipeline
+
+    files = expand_sources(args.frames)
+    total = count_frames(files)
+    frames = iter_frames(files)
+    first = next(frames, None)
+    if first is None:
+        raise ValueError("the frames hold no frame")
+    if args.setup is not None:
+        import json
+
+        setup = json.loads(args.setup.read_text())
+        if not isinstance(setup, dict) or "sensor" not in setup or "camera" not in setup:
+            raise ValueError(f"{args.setup}: expected a JSON object with 'sensor' and 'camera'")
+        sensor = DomeSensor.from_dict(setup["sensor"])
+        camera = FisheyeCamera.from_dict(setup["camera"])
+    else:
+        sensor = DomeSensor.default()
+        h, w = first[1].shape[:2]
+        camera = FisheyeCamera(width=w, height=h, fov_deg=args.fov, z=args.camera_z)
+    options = dict(method=args.method, filter=args.filter, filter_size=args.filter_size,
+                   noise_sigma=args.noise_sigma, k=args.k)
+    baseline = None if args.baseline is None else _load_baseline(args.baseline)
+    pipe = Pipeline(sensor, camera, baseline=baseline, **options)
+    n_base = 0 if baseline is not None else args.baseline_frames
+    how = (f"baseline {args.baseline}" if baseline is not None else
+           f"baseline = mean of the first {n_base} frame(s)" if n_base else "no baseline")
+    print(f"optitact: processing {camera.width}x{camera.height} frames, {how}", file=sys.stderr)
+
+    def stream():
+        yield first
+        yield from frames
+
+    t0 = time.perf_counter()
+    held: list[tuple[str, np.ndarray]] = []
+    with ReadingsWriter(args.out) as out, tqdm(total=total, unit="frame", desc="process",
+                                               file=sys.stderr) as bar:
+        def flush():
+            names = [n for n, _ in held]
+            out.write(pipe.process(np.stack([f for _, f in held])), names)
+            bar.update(len(held))
+            held.clear()
+
+        for name, frame in stream():
+            if frame.shape != camera.shape:
+                raise ValueError(f"{name}: expected a {camera.height}x{camera.width} frame for "
+                                 f"this camera, got {frame.shape}")
+            held.append((name, frame))
+            if n_base and pipe.baseline is None:
+                if len(held) == n_base:
+                    pipe = pipe.with_baseline(np.stack([f for _, f in held]))
+                    flush()
+                continue
+            if len(held) >= args.batch:
+                flush()
+        if n_base and pipe.baseline is None:
+            raise ValueError(f"the frames end after {len(held)}, before the {n_base} baseline "
+                             f"frames")
+        if held:
+            flush()
+        n = out.frames
+    seconds = time.perf_counter() - t0
+    print(f"optitact: wrote readings of {n} frames to {args.out} "
+          f"({n / max(seconds, 1e-9):.0f} frames/s including reading)", file=sys.stderr)
+    return 0
+
+
 def _bench(args) -> int:
     import json
 
-    from .bench import bench_render
+    from .bench import bench_pipeline, bench_render
 
-    result = bench_render(tuple(args.spp), repeats=args.repeats, width=args.width,
-                          height=args.height, variant=args.variant)
+    if args.bench == "pipeline":
+        result = bench_pipeline([_size(s) for s in args.size], n_frames=args.frames,
+                                repeats=args.repeats, spp=args.spp, seed=args.seed,
+                                variant=args.variant)
+    else:
+        result = bench_render(tuple(args.spp), repeats=args.repeats, width=args.width,
+                              height=args.height, variant=args.variant)
     print(json.dumps(result))
     return 0
 
@@ -231,7 +383,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        return {"demo": _demo, "render": _render, "bench": _bench}[args.command](args)
+        commands = {"demo": _demo, "render": _render, "process": _process, "bench": _bench}
+        return commands[args.command](args)
     except (ValueError, TypeError, OSError) as exc:
         print(f"optitact: error: {exc}", file=sys.stderr)
         return 2

@@ -12,13 +12,14 @@ import csv
 import json
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError, ShapeError
 
-__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json"]
+__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -124,3 +125,43 @@ def write_json(path: str | os.PathLike, obj) -> None:
         raise TypeError(f"cannot write {type(o).__name__} as JSON")
 
     Path(path).write_text(json.dumps(obj, indent=2, default=default) + "\n")
+
+
+class ReadingsWriter:
+    """Append readings to a CSV file, one row per frame and element.
+
+    Columns: ``frame, source, element, G, ux, uy, contact, saturated`` (G in
+    grey level x mm^2, u in mm, flags as 0/1). Use as a context manager.
+    """
+
+    COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self._fh = self.path.open("w", newline="")
+        self._csv = csv.writer(self._fh)
+        self._csv.writerow(self.COLUMNS)
+        self.frames = 0
+
+    def write(self, readings, sources: Sequence[str]) -> None:
+        """Write readings of ``len(sources)`` frames (a stack, or one frame)."""
+        r = readings if readings.is_stack else readings._lifted()
+        if len(r) != len(sources):
+            raise ShapeError(f"got readings of {len(r)} frames for {len(sources)} sources")
+        e = np.arange(r.n_elements)
+        for k, src in enumerate(sources):
+            rows = zip(e, r.G[k], r.u[k, :, 0], r.u[k, :, 1], r.contact[k], r.saturated[k],
+                       strict=True)
+            self._csv.writerows((self.frames, src, int(i), f"{g:.9g}", f"{ux:.9g}", f"{uy:.9g}",
+                                 int(c), int(s)) for i, g, ux, uy, c, s in rows)
+            self.frames += 1
+
+    def close(self) -> None:
+        """Close the file."""
+        self._fh.close()
+
+    def __enter__(self) -> ReadingsWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -411,21 +411,16 @@ def estimate_noise(frames) -> float:
 class _Fold:
     """Per-(element, pixel) weights: the dewarp, areas and coordinates folded together.
 
-    Entries are sorted by element, then pixel; a pixel feeding two regions
-    (only possible where regions touch) has one entry in each.
+    Entries are sorted by pixel (so a frame is read in memory order), then
+    element; a pixel feeding two regions (only possible where regions
+    touch) has one entry for each.
     """
 
     pixel: np.ndarray      # (n_entries,) flat pixel index (row * W + col)
-    starts: np.ndarray     # (E,) first entry of each element (entries of e: starts[e]:starts[e+1])
-    weights: np.ndarray    # (n_entries, 3): dome area (mm^2) the pixel gives its region,
+    label: np.ndarray      # (n_entries,) element of the entry
+    weights: np.ndarray    # (3, n_entries): dome area (mm^2) the pixel gives its region,
                            # area * x and area * y (mm^3)
     pixel_area: np.ndarray  # (E,) mean dome area (mm^2) per footprint pixel of each region
-
-    @property
-    def label(self) -> np.ndarray:
-        """Element of each entry."""
-        return np.repeat(np.arange(len(self.starts)), np.diff(np.append(self.starts,
-                                                                         len(self.pixel))))
 
 
 @lru_cache(maxsize=8)
@@ -453,31 +448,16 @@ def _fold(grids: RegionGrids, shape: tuple[int, int]) -> _Fold:
         bw.append(np.stack([wt * a, wt * a * x, wt * a * y])[:, keep])
     pix, ele, bw = np.concatenate(pix), np.concatenate(ele), np.concatenate(bw, axis=1)
     n_el = grids.n_elements
-    keys, inverse = np.unique(ele * (h * w) + pix, return_inverse=True)
-    weights = np.stack([np.bincount(inverse, bw[k], minlength=len(keys)) for k in range(3)], axis=1)
-    label, pixel = np.divmod(keys, h * w)
-    starts = np.searchsorted(label, np.arange(n_el))
+    keys, inverse = np.unique(pix * n_el + ele, return_inverse=True)
+    weights = np.stack([np.bincount(inverse, bw[k], minlength=len(keys)) for k in range(3)])
+    pixel, label = np.divmod(keys, n_el)
     n_pix = np.bincount(label, minlength=n_el)
-    region_area = np.bincount(label, weights[:, 0], minlength=n_el)
+    region_area = np.bincount(label, weights[0], minlength=n_el)
     pixel_area = np.divide(region_area, n_pix, out=np.zeros(n_el), where=n_pix > 0)
-    pixel = pixel.astype(np.intp)
-    for arr in (pixel, starts, weights, pixel_area):
+    pixel, label = pixel.astype(np.intp), label.astype(np.intp)
+    for arr in (pixel, label, weights, pixel_area):
         arr.flags.writeable = False
-    return _Fold(pixel, starts, weights, pixel_area)
-
-
-def _segment_sums(values: np.ndarray, idx: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    """Row sums of ``values`` over the runs of sorted positions ``idx`` split at ``bounds``.
-
-    ``out[k] = values[(idx >= bounds[k]) & (idx < bounds[k + 1])].sum(axis=0)``
-    (the last run ends at infinity); empty runs give 0. ``values`` has one
-    spare zero row at the end (``len(values) == len(idx) + 1``) so that
-    ``np.add.reduceat`` can index one past the last lit entry.
-    """
-    seg = np.searchsorted(idx, bounds)
-    out = np.add.reduceat(values, seg, axis=0)
-    out[seg == np.append(seg[1:], len(idx))] = 0.0
-    return out
+    return _Fold(pixel, label, weights, pixel_area)
 
 
 # ---------------------------------------------------------------------------- the pipeline
@@ -688,9 +668,9 @@ class Pipeline:
     def _fast(self, stack: np.ndarray) -> Readings:
         """The folded sums over the lit entries of a stack (readings ``(T, E)``).
 
-        Only the pixels of the regions are read (gathered in element order);
-        the lit ones (above the level) are weighted and summed per element
-        with ``np.add.reduceat``, so dark regions cost nothing more.
+        Only the pixels of the regions are read (in memory order); the lit
+        ones (above the level) are weighted and summed per element, so dark
+        pixels cost one comparison each.
         """
         t_n = stack.shape[0]
         fold = self._fold
@@ -698,7 +678,7 @@ class Pipeline:
         level, watch, sat = self._level(stack.dtype)
         flat = stack.reshape(t_n, -1)
         if self.filter == "none":
-            # (T, n_entries) grey values of the region pixels, element-major
+            # (T, n_entries) grey values of the region pixels
             g = flat[0][fold.pixel][None] if t_n == 1 else np.take(flat, fold.pixel, axis=1)
             idx = np.flatnonzero(g > level)
             e = idx if t_n == 1 else idx % n_ent
@@ -711,16 +691,18 @@ class Pipeline:
         else:
             idx, v, hot = self._filtered_lit(flat)
             e = idx % n_ent
-        bounds = fold.starts if t_n == 1 else (np.arange(t_n)[:, None] * n_ent
-                                               + fold.starts).reshape(-1)
-        vals = np.empty((len(idx) + 1, 3))  # area, area * x, area * y, times the grey value
-        np.multiply(np.take(fold.weights, e, axis=0), v[:, None], out=vals[:-1])
-        vals[-1] = 0.0
-        sums = _segment_sums(vals, idx, bounds)
-        g_sum, m = sums[:, 0], sums[:, 1:]
-        saturated = np.zeros(t_n * n_el, bool)
+        key = fold.label[e]
+        if t_n > 1:
+            key = key + (idx // n_ent) * n_el
+        vals = np.take(fold.weights, e, axis=1)  # area, area * x, area * y
+        vals *= v
+        size = t_n * n_el
+        g_sum = np.bincount(key, vals[0], minlength=size)
+        m = np.stack([np.bincount(key, vals[1], minlength=size),
+                      np.bincount(key, vals[2], minlength=size)], axis=-1)
+        saturated = np.zeros(size, bool)
         if hot.size:
-            saturated[np.searchsorted(bounds, hot, side="right") - 1] = True
+            saturated[fold.label[hot % n_ent] + (hot // n_ent) * n_el] = True
         return readings_from_moments(g_sum.reshape(t_n, n_el), m.reshape(t_n, n_el, 2),
                                      saturated.reshape(t_n, n_el), self.floor)
 
