@@ -594,11 +594,13 @@ class Pipeline:
         stack, single = check_frames(frames, self.camera)
         if self.method == "reference":
             out = Readings.stack([self._reference(f) for f in stack])
+        elif single:
+            return self._fast(stack, single=True)
         else:
             parts = [self._fast(stack[i:i + CHUNK_FRAMES])
                      for i in range(0, len(stack), CHUNK_FRAMES)]
             out = parts[0] if len(parts) == 1 else Readings.stack(parts)
-        return Readings(out.G[0], out.u[0], out.contact[0], out.saturated[0]) if single else out
+        return out[0] if single else out
 
     def stream(self, frames, *, baseline_frames: int = 0):
         """Yield readings frame by frame from an iterable of frames.
@@ -665,8 +667,8 @@ class Pipeline:
             self._levels[key] = (level, watch, sat)
         return self._levels[key]
 
-    def _fast(self, stack: np.ndarray) -> Readings:
-        """The folded sums over the lit entries of a stack (readings ``(T, E)``).
+    def _fast(self, stack: np.ndarray, single: bool = False) -> Readings:
+        """The folded sums over the lit entries of a stack (readings ``(T, E)``, or ``(E,)`` if single).
 
         Only the pixels of the regions are read (in memory order); the lit
         ones (above the level) are weighted and summed per element, so dark
@@ -694,17 +696,18 @@ class Pipeline:
         key = fold.label[e]
         if t_n > 1:
             key = key + (idx // n_ent) * n_el
-        vals = np.take(fold.weights, e, axis=1)  # area, area * x, area * y
-        vals *= v
         size = t_n * n_el
-        g_sum = np.bincount(key, vals[0], minlength=size)
-        m = np.stack([np.bincount(key, vals[1], minlength=size),
-                      np.bincount(key, vals[2], minlength=size)], axis=-1)
-        saturated = np.zeros(size, bool)
+        area, wx, wy = fold.weights
+        g_sum = np.bincount(key, area[e] * v, minlength=size).reshape(t_n, n_el)
+        m = np.empty((t_n, n_el, 2))
+        m[..., 0] = np.bincount(key, wx[e] * v, minlength=size).reshape(t_n, n_el)
+        m[..., 1] = np.bincount(key, wy[e] * v, minlength=size).reshape(t_n, n_el)
+        saturated = np.zeros((t_n, n_el), bool)
         if hot.size:
-            saturated[fold.label[hot % n_ent] + (hot // n_ent) * n_el] = True
-        return readings_from_moments(g_sum.reshape(t_n, n_el), m.reshape(t_n, n_el, 2),
-                                     saturated.reshape(t_n, n_el), self.floor)
+            saturated.reshape(-1)[fold.label[hot % n_ent] + (hot // n_ent) * n_el] = True
+        if single:
+            return readings_from_moments(g_sum[0], m[0], saturated[0], self.floor)
+        return readings_from_moments(g_sum, m, saturated, self.floor)
 
     def _filtered_lit(self, flat: np.ndarray):
         """Lit entries after the filter, computed on the crop that holds the regions plus the filter's reach."""
