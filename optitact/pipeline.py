@@ -124,8 +124,8 @@ def _saturation_level(dtype: np.dtype, saturation: float | None) -> float:
 
 
 # ---------------------------------------------------------------------------- steps
-def subtract_baseline(frame, baseline=None) -> np.ndarray:
-    """Step 1: ``max(frame - baseline, 0)`` in float64 (a new array).
+def subtract_baseline(frame, baseline=None, *, clip: bool = True) -> np.ndarray:
+    """Step 1: ``frame - baseline`` in float64, clipped at 0 (a new array).
 
     Parameters
     ----------
@@ -133,14 +133,18 @@ def subtract_baseline(frame, baseline=None) -> np.ndarray:
     baseline : (H, W) array_like or None
         The no-load frame (for example the mean of the first frames of a
         stream); None subtracts nothing.
+    clip : bool
+        Clip at zero (default). The pipeline keeps the sign when a filter
+        follows, so that the filter averages zero-mean noise; its threshold
+        (>= 0) then does the clipping.
     """
     img = np.asarray(frame, dtype=np.float64)
-    if baseline is None:
-        return np.maximum(img, 0.0)
-    b = np.asarray(baseline, dtype=np.float64)
-    if b.shape != img.shape:
-        raise ShapeError(f"baseline must have the frame's shape {img.shape}, got {b.shape}")
-    return np.maximum(img - b, 0.0)
+    if baseline is not None:
+        b = np.asarray(baseline, dtype=np.float64)
+        if b.shape != img.shape:
+            raise ShapeError(f"baseline must have the frame's shape {img.shape}, got {b.shape}")
+        img = img - b
+    return np.maximum(img, 0.0) if clip else np.array(img)
 
 
 def _gaussian_kernel(size: float) -> np.ndarray:
@@ -421,6 +425,7 @@ class _Fold:
     weights: np.ndarray    # (3, n_entries): dome area (mm^2) the pixel gives its region,
                            # area * x and area * y (mm^3)
     pixel_area: np.ndarray  # (E,) mean dome area (mm^2) per footprint pixel of each region
+    n_pixels: np.ndarray   # (E,) footprint pixels of each region
 
 
 @lru_cache(maxsize=8)
@@ -455,9 +460,9 @@ def _fold(grids: RegionGrids, shape: tuple[int, int]) -> _Fold:
     region_area = np.bincount(label, weights[0], minlength=n_el)
     pixel_area = np.divide(region_area, n_pix, out=np.zeros(n_el), where=n_pix > 0)
     pixel, label = pixel.astype(np.intp), label.astype(np.intp)
-    for arr in (pixel, label, weights, pixel_area):
+    for arr in (pixel, label, weights, pixel_area, n_pix):
         arr.flags.writeable = False
-    return _Fold(pixel, label, weights, pixel_area)
+    return _Fold(pixel, label, weights, pixel_area, n_pix)
 
 
 # ---------------------------------------------------------------------------- the pipeline
@@ -490,8 +495,13 @@ class Pipeline:
         ``k * sigma_f`` (``sigma_f``: ``noise_sigma`` after the filter, i.e.
         times the Gaussian kernel's L2 norm) count as dark.
     min_pixels : float
-        Contact needs ``G`` above what ``min_pixels`` pixels just at the
-        threshold would give (the region's noise floor), default 3.
+        Contact needs ``G`` above the region's noise floor: what
+        ``min_pixels + n_false + 3 sqrt(n_false)`` independent samples just at
+        the threshold would give, with ``n_false = n Q(k)`` the number of
+        the region's ``n`` samples that Gaussian noise alone puts above the
+        threshold on average (``Q``: the normal tail); default 3. A sample
+        is a pixel, or after a Gaussian filter its correlation area
+        ``1 / sum(k**2)**2 = 4 pi sigma^2`` pixels.
     saturation : float, optional
         Grey level at which a pixel is saturated; default the integer dtype's
         maximum (255, 65535), none for float frames.
@@ -535,14 +545,20 @@ class Pipeline:
         self.k = positive(k, "k", allow_zero=True)
         self.min_pixels = positive(min_pixels, "min_pixels", allow_zero=True)
         self.saturation = None if saturation is None else positive(saturation, "saturation")
-        # A separable Gaussian k (x) k scales white noise by its L2 norm, sum(k**2).
+        # A separable Gaussian k (x) k scales white noise by its L2 norm, sum(k**2), and
+        # correlates it over 1 / sum(k**2)**2 pixels (4 pi sigma^2).
         gain = float(np.sum(_gaussian_kernel(filter_size) ** 2)) if filter == "gaussian" else 1.0
         #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is dark.
         self.threshold = self.k * self.noise_sigma * gain
+        self._geometry = dict(radius=radius, grid_mm=grid_mm)  # as given: replace() hits the cache
         self.grids = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
         self._fold = _fold(self.grids, camera.shape)
         #: Per-region noise floor of G (grey level x mm^2).
-        self.floor = self.min_pixels * self.threshold * self._fold.pixel_area
+        # Noise alone lights n Q(k) of a region's n independent samples on average:
+        # the floor adds that count and 3 of its (Poisson) standard deviations.
+        n_false = self._fold.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
+        samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
+        self.floor = samples / gain**2 * self.threshold * self._fold.pixel_area
         self.baseline = None if baseline is None else self._check_baseline(baseline)
         self._levels: dict = {}
         self._base_entries = (np.zeros(len(self._fold.pixel)) if self.baseline is None
@@ -558,12 +574,16 @@ class Pipeline:
     def _options(self) -> dict:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
                     noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
-                    saturation=self.saturation, radius=self.grids.radius,
-                    grid_mm=self.grids.grid_mm)
+                    saturation=self.saturation, **self._geometry)
 
     def replace(self, **changes) -> Pipeline:
-        """A pipeline with some options changed (the geometry is shared when unchanged)."""
+        """A pipeline with some options changed (the geometry is shared when unchanged).
+
+        A new ``filter`` without a ``filter_size`` takes that filter's default size.
+        """
         opts = self._options() | {"baseline": self.baseline} | changes
+        if "filter" in changes and "filter_size" not in changes:
+            opts["filter_size"] = None
         return Pipeline(self.sensor, self.camera, **opts)
 
     def with_baseline(self, frames) -> Pipeline:
@@ -629,7 +649,7 @@ class Pipeline:
 
     # ------------------------------------------------------------------ the two methods
     def _reference(self, frame: np.ndarray) -> Readings:
-        img = subtract_baseline(frame, self.baseline)
+        img = subtract_baseline(frame, self.baseline, clip=self.filter == "none")
         img = denoise(img, method=self.filter, size=self.filter_size)
         img = apply_threshold(img, self.threshold)
         g, m = integrate(dewarp(img, self.grids), self.grids)
@@ -640,13 +660,13 @@ class Pipeline:
     def _level(self, dtype: np.dtype):
         """Lit level per region entry for frames of ``dtype``, and the entries to watch for saturation.
 
-        An entry is lit when ``frame > level``: for integer frames ``level =
-        floor(baseline + threshold)`` in the frame's dtype (exact for integer
-        grey levels); for float frames ``level = baseline + threshold``, which
-        matches the reference's ``frame - baseline > threshold`` up to
-        rounding at the threshold itself. Entries whose level reaches the
-        saturation level cannot show saturation by being lit; they are
-        watched separately.
+        An entry is lit when ``frame > level``: for integer frames ``level``
+        is the largest grey level ``n`` with ``n - baseline <= threshold`` in
+        float64 (exact for integer grey levels); for float frames ``level =
+        baseline + threshold``, which matches the reference's ``frame -
+        baseline > threshold`` up to rounding at the threshold itself.
+        Entries whose level reaches the saturation level cannot show
+        saturation by being lit; they are watched separately.
         """
         key = dtype.str
         if key not in self._levels:
@@ -654,7 +674,12 @@ class Pipeline:
             sat = _saturation_level(dtype, self.saturation)
             if dtype.kind in "ui":
                 top = np.iinfo(dtype).max
-                level = np.clip(np.floor(b + self.threshold), 0, top).astype(dtype)
+                # The largest n with n - b <= threshold in float64, as the reference
+                # tests it: floor(b + threshold) can be one off after rounding.
+                n = np.floor(b + self.threshold)
+                n += (n + 1.0) - b <= self.threshold
+                n -= n - b > self.threshold
+                level = np.clip(n, 0, top).astype(dtype)
             else:
                 level = (b + self.threshold).astype(dtype)
                 if dtype != np.float64:  # round up so no value at or below the float64 level passes
@@ -724,7 +749,8 @@ class Pipeline:
         idx, v, hot = [], [], []
         for i, frame in enumerate(flat):
             crop = frame.reshape(h, w)[r0:r1, c0:c1]
-            img = denoise(subtract_baseline(crop, base), method=self.filter, size=self.filter_size)
+            img = denoise(subtract_baseline(crop, base, clip=False), method=self.filter,
+                          size=self.filter_size)
             vals = np.take(img, local)
             lit = np.flatnonzero(vals > self.threshold)
             idx.append(i * n_ent + lit)
