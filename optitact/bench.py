@@ -16,7 +16,7 @@ from .camera import FisheyeCamera
 from .loads import indenter_load
 from .sensor import DomeSensor
 
-__all__ = ["bench_render", "bench_pipeline"]
+__all__ = ["bench_render", "bench_pipeline", "bench_accuracy"]
 
 
 def bench_render(spps=(16, 64, 256), *, repeats: int = 3, width: int = 640, height: int = 480,
@@ -210,3 +210,93 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
             "precompute_s": round(precompute, 3),
         }
     return result
+
+
+def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
+                   size: tuple[int, int] = (640, 480), calibration_set=None, test_set=None,
+                   seed: int = 0, variant: str | None = None, plot=None,
+                   contact_min_n: float = 0.01) -> dict:
+    """Force errors of both calibration models on a held-out synthetic set.
+
+    Parameters
+    ----------
+    frames, test_frames : int
+        Frames of the calibration and the held-out set (41 samples each).
+    spp : int
+        Samples per pixel of the renders.
+    size : (int, int)
+        Frame width and height.
+    calibration_set, test_set : path-like, optional
+        Existing sets to use; by default they are generated (resumably) in
+        the user cache folder, the held-out one with seed ``seed + 1000``
+        (disjoint seeds, independently drawn forces).
+    seed : int
+    variant : str, optional
+    plot : path-like, optional
+        PNG of estimated vs true forces per model.
+    contact_min_n : float
+        A true normal force at or above this (N) should read as contact;
+        below it, as none (for ``contact_flag_error_rate``).
+
+    Returns
+    -------
+    dict
+        ``{"models": {"ohka": {...}, "coupled": {...}}, ...}`` with, per model,
+        ``fx_rmse_n``, ``fy_rmse_n``, ``fz_rmse_n``, the same as % of full
+        scale (``fz_max`` for Fz, ``shear_max`` for Fx and Fy),
+        ``max_abs_error_n``, ``contact_flag_error_rate`` and
+        ``clamped_rate``, over every element sample of the held-out set.
+    """
+    from ._cache import cache_dir
+    from .calib import MODELS, CalibrationSet, fit, generate
+    from .calib.plots import plot_errors
+
+    width, height = size
+    camera = FisheyeCamera(width=integer(width, "width", minimum=2),
+                           height=integer(height, "height", minimum=2))
+    sets = cache_dir() / "sets"
+
+    def get(given, n, s, tag):
+        if given is not None:
+            return CalibrationSet(given)
+        path = sets / f"{tag}-{width}x{height}-f{n}-spp{spp}-seed{s}.zarr"
+        print(f"optitact: bench accuracy: {tag} set {path}", file=sys.stderr)
+        return generate(path, frames=n, camera=camera, spp=spp, seed=s, variant=variant)
+
+    cs = get(calibration_set, frames, seed, "calibration")
+    ts = get(test_set, test_frames, seed + 1000, "test")
+    if ts.attrs["seed"] == cs.attrs["seed"]:
+        raise ValueError("the held-out set must have another seed than the calibration set")
+    truth = ts.forces()
+    readings = ts.readings()
+    design = cs.attrs["design"]
+    fs = np.array([design["shear_max"], design["shear_max"], design["fz_max"]])
+    out: dict = {"size": f"{camera.width}x{camera.height}", "spp": int(cs.attrs["spp"]),
+                 "calibration_set": {"path": str(cs.path), "frames": int(cs.done.sum()),
+                                     "seed": cs.attrs["seed"]},
+                 "test_set": {"path": str(ts.path), "frames": int(ts.done.sum()),
+                              "seed": ts.attrs["seed"], "samples": int(truth[..., 0].size)},
+                 "full_scale_n": {"fx": fs[0], "fy": fs[1], "fz": fs[2]},
+                 "ccd": ts.attrs["ccd"], "models": {}}
+    estimates = {}
+    for model in MODELS:
+        cal = fit(cs, model=model)
+        est, clamped = cal.forces(readings)
+        estimates[model] = est
+        err = est - truth
+        rmse = np.sqrt(np.mean(err**2, axis=(0, 1)))
+        should = truth[..., 2] >= contact_min_n
+        out["models"][model] = {
+            "fx_rmse_n": round(float(rmse[0]), 5), "fy_rmse_n": round(float(rmse[1]), 5),
+            "fz_rmse_n": round(float(rmse[2]), 5),
+            "fx_rmse_pct_fs": round(float(100 * rmse[0] / fs[0]), 3),
+            "fy_rmse_pct_fs": round(float(100 * rmse[1] / fs[1]), 3),
+            "fz_rmse_pct_fs": round(float(100 * rmse[2] / fs[2]), 3),
+            "max_abs_error_n": round(float(np.abs(err).max()), 5),
+            "contact_flag_error_rate": round(float(np.mean(readings.contact != should)), 5),
+            "clamped_rate": round(float(np.mean(clamped)), 5),
+        }
+    if plot is not None:
+        plot_errors(truth, estimates, plot)
+        out["plot"] = str(plot)
+    return out

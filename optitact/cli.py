@@ -117,16 +117,62 @@ def _parser() -> argparse.ArgumentParser:
                       help="without --setup: camera height on the dome axis (mm, default -5)")
     proc.add_argument("--method", choices=("fast", "reference"), default="fast",
                       help="fast (default) or the step-by-step reference")
-    proc.add_argument("--filter", choices=("none", "gaussian", "median"), default="none",
+    proc.add_argument("--filter", choices=("none", "gaussian", "median"), default=None,
                       help="denoising before the threshold (default none)")
     proc.add_argument("--filter-size", type=float, default=None,
                       help="Gaussian sigma in pixels (default 1) or median window (default 3)")
-    proc.add_argument("--noise-sigma", type=float, default=0.5,
+    proc.add_argument("--noise-sigma", type=float, default=None,
                       help="noise of frame - baseline per pixel, grey levels (default 0.5)")
-    proc.add_argument("--k", type=float, default=3.0,
+    proc.add_argument("--k", type=float, default=None,
                       help="threshold in noise sigmas (default 3)")
+    proc.add_argument("--calibration", type=Path, default=None, metavar="CAL.json",
+                      help="also estimate forces with this calibration (adds fx, fy, fz, clamped "
+                           "columns); it fixes the sensor, camera and pipeline options. "
+                           "'default' uses the shipped calibration")
+    proc.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
+                      help="with --calibration: save a force-field plot of the last frame")
     proc.add_argument("--batch", type=_positive_int, default=32,
                       help="frames processed together (default 32)")
+
+    cal = sub.add_parser(
+        "calibrate", help="synthetic calibration sets and fitted curves",
+        description="Generate a synthetic calibration set (rendered frames with known forces, "
+                    "resumable) and fit calibration curves to it.")
+    csub = cal.add_subparsers(dest="calibrate", required=True, metavar="STEP")
+    gen = csub.add_parser(
+        "generate", help="render a calibration set into a Zarr store (resumable)",
+        description="Render FRAMES frames, each loading all 41 elements with independent forces "
+                    "(Sobol design plus pure-normal and pure-shear sweeps), read them with the "
+                    "pipeline and store readings, true forces, seeds and settings in a Zarr "
+                    "store. Killing the job and running the same command again finishes the set, "
+                    "identical to an uninterrupted run. Progress bar with frames/s and ETA on "
+                    "stderr.")
+    gen.add_argument("--frames", type=_positive_int, default=200, help="frames (default 200)")
+    gen.add_argument("--out", type=Path, required=True, metavar="SET.zarr", help="the store")
+    gen.add_argument("--spp", type=_positive_int, default=64, help="samples per pixel (default 64)")
+    gen.add_argument("--seed", type=_seed, default=0, help="seed of the whole set (default 0)")
+    gen.add_argument("--fz-max", type=float, default=1.0, help="largest normal force, N (default 1)")
+    gen.add_argument("--shear-max", type=float, default=0.5,
+                     help="largest shear magnitude, N (default 0.5)")
+    gen.add_argument("--mu-max", type=float, default=0.35,
+                     help="largest shear/normal ratio (default 0.35; the feeler tips at ~0.37)")
+    gen.add_argument("--keep-frames", action="store_true", help="also store the frames")
+    gen.add_argument("--width", type=_positive_int, default=640, help="image width (default 640)")
+    gen.add_argument("--height", type=_positive_int, default=480,
+                     help="image height (default 480)")
+    gen.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
+    fitp = csub.add_parser(
+        "fit", help="fit calibration curves to a set",
+        description="Fit per-element curves Fz = g(G) and the shear curves (model ohka: "
+                    "Fx = f(ux), Fy = f(uy); model coupled: (Fx, Fy) = u g(G) / (a + b sqrt(g(G))))"
+                    " to a calibration set and write them as JSON; --plot saves the curves with "
+                    "their residuals.")
+    fitp.add_argument("set", type=Path, metavar="SET.zarr", help="a calibration set")
+    fitp.add_argument("--model", choices=("ohka", "coupled"), default="coupled",
+                      help="curve model (default coupled)")
+    fitp.add_argument("--out", type=Path, required=True, metavar="CAL.json")
+    fitp.add_argument("--plot", type=Path, default=None, metavar="FIT.png",
+                      help="save g(G), the shear curves and residuals as PNG")
 
     bench = sub.add_parser(
         "bench", help="benchmarks (time side by side with error)",
@@ -166,6 +212,28 @@ def _parser() -> argparse.ArgumentParser:
     bpipe.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
     bpipe.add_argument("--json", action="store_true",
                        help="print only the JSON object (the default output is JSON too)")
+    bacc = bsub.add_parser(
+        "accuracy", help="force errors of both models on a held-out synthetic set",
+        description="Fit both models on a calibration set and report force errors on a held-out "
+                    "set (disjoint seeds, independent forces) at the nominal CCD noise. Sets "
+                    "are generated once and cached in the user cache folder, or given.")
+    bacc.add_argument("--frames", type=_positive_int, default=100,
+                      help="calibration frames (default 100)")
+    bacc.add_argument("--test-frames", type=_positive_int, default=30,
+                      help="held-out frames (default 30)")
+    bacc.add_argument("--spp", type=_positive_int, default=64, help="samples per pixel (default 64)")
+    bacc.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
+    bacc.add_argument("--calibration-set", type=Path, default=None, metavar="SET.zarr",
+                      help="use this calibration set instead of generating one")
+    bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
+                      help="use this held-out set instead of generating one")
+    bacc.add_argument("--seed", type=_seed, default=0,
+                      help="seed of the calibration set; the held-out set uses seed + 1000")
+    bacc.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
+    bacc.add_argument("--plot", type=Path, default=None, metavar="ERRORS.png",
+                      help="save estimated vs true forces of both models as PNG")
+    bacc.add_argument("--json", action="store_true",
+                      help="print only the JSON object (the default output is JSON too)")
     return parser
 
 
@@ -315,10 +383,33 @@ def _process(args) -> int:
         sensor = DomeSensor.default()
         h, w = first[1].shape[:2]
         camera = FisheyeCamera(width=w, height=h, fov_deg=args.fov, z=args.camera_z)
-    options = dict(method=args.method, filter=args.filter, filter_size=args.filter_size,
-                   noise_sigma=args.noise_sigma, k=args.k)
+    given = {k: v for k, v in (("filter", args.filter), ("filter_size", args.filter_size),
+                                 ("noise_sigma", args.noise_sigma), ("k", args.k)) if v is not None}
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
-    pipe = Pipeline(sensor, camera, baseline=baseline, **options)
+    cal = None
+    if args.calibration is not None:
+        from .calib import Calibration, default_calibration
+
+        cal = (default_calibration() if str(args.calibration) == "default"
+               else Calibration.load(args.calibration))
+        if given:
+            raise ValueError(f"the calibration fixes the pipeline options "
+                             f"({cal.pipeline_options}); drop {', '.join(sorted(given))}")
+        cal.check(sensor=sensor if args.setup is not None else None,
+                  camera=camera if args.setup is not None else None)
+        if first[1].shape[:2] != cal.camera.shape:
+            from .calib import CalibrationMismatchError
+
+            raise CalibrationMismatchError(
+                f"{first[0]}: the calibration (fingerprint {cal.fingerprint}) is for "
+                f"{cal.camera.width}x{cal.camera.height} frames, got "
+                f"{first[1].shape[1]}x{first[1].shape[0]}")
+        sensor, camera = cal.sensor, cal.camera
+        pipe = cal.pipeline(baseline=baseline, method=args.method)
+    elif args.plot is not None:
+        raise ValueError("--plot needs --calibration (it plots estimated forces)")
+    else:
+        pipe = Pipeline(sensor, camera, baseline=baseline, method=args.method, **given)
     n_base = 0 if baseline is not None else args.baseline_frames
     how = (f"baseline {args.baseline}" if baseline is not None else
            f"baseline = mean of the first {n_base} frame(s)" if n_base else "no baseline")
@@ -330,11 +421,19 @@ def _process(args) -> int:
 
     t0 = time.perf_counter()
     held: list[tuple[str, np.ndarray]] = []
-    with ReadingsWriter(args.out) as out, tqdm(total=total, unit="frame", desc="process",
-                                               file=sys.stderr) as bar:
+    last: dict = {}
+    with ReadingsWriter(args.out, forces=cal is not None) as out, \
+            tqdm(total=total, unit="frame", desc="process", file=sys.stderr) as bar:
         def flush():
             names = [n for n, _ in held]
-            out.write(pipe.process(np.stack([f for _, f in held])), names)
+            stack = np.stack([f for _, f in held])
+            r = pipe.process(stack)
+            if cal is None:
+                out.write(r, names)
+            else:
+                f, clamped = cal.forces(r)
+                out.write(r, names, f, clamped)
+                last.update(frame=stack[-1], readings=r[-1])
             bar.update(len(held))
             held.clear()
 
@@ -357,8 +456,44 @@ def _process(args) -> int:
             flush()
         n = out.frames
     seconds = time.perf_counter() - t0
-    print(f"optitact: wrote readings of {n} frames to {args.out} "
+    if args.plot is not None and last:
+        field = cal.apply(last["readings"])
+        field.save_plot(args.plot, last["frame"], camera,
+                        title="estimated forces (last frame)")
+        print(f"optitact: wrote the force-field plot of the last frame to {args.plot}",
+              file=sys.stderr)
+    print(f"optitact: wrote {'forces' if cal else 'readings'} of {n} frames to {args.out} "
           f"({n / max(seconds, 1e-9):.0f} frames/s including reading)", file=sys.stderr)
+    return 0
+
+
+def _calibrate(args) -> int:
+    from .calib import Design, fit, generate
+
+    if args.calibrate == "generate":
+        design = Design(fz_max=args.fz_max, shear_max=args.shear_max, mu_max=args.mu_max)
+        cs = generate(args.out, frames=args.frames, camera=FisheyeCamera(width=args.width,
+                                                                        height=args.height),
+                      spp=args.spp, seed=args.seed, design=design, keep_frames=args.keep_frames,
+                      variant=args.variant)
+        print(f"optitact: calibration set {args.out}: {int(cs.done.sum())} of {len(cs)} frames "
+              f"done", file=sys.stderr)
+        print(args.out)
+        return 0
+    cal = fit(args.set, model=args.model)
+    cal.save(args.out)
+    r = cal.residuals
+    print(f"optitact: fitted {args.model} on {int(np.sum(r['n']))} samples; median RMS residual "
+          f"Fx {np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} "
+          f"N; wrote {args.out}", file=sys.stderr)
+    if args.plot is not None:
+        from .calib import CalibrationSet
+        from .calib.plots import plot_fit
+
+        cs = CalibrationSet(args.set)
+        plot_fit(cal, cs.readings(), cs.forces(), args.plot)
+        print(f"optitact: wrote {args.plot}", file=sys.stderr)
+    print(args.out)
     return 0
 
 
@@ -367,7 +502,14 @@ def _bench(args) -> int:
 
     from .bench import bench_pipeline, bench_render
 
-    if args.bench == "pipeline":
+    if args.bench == "accuracy":
+        from .bench import bench_accuracy
+
+        result = bench_accuracy(frames=args.frames, test_frames=args.test_frames, spp=args.spp,
+                                size=_size(args.size), calibration_set=args.calibration_set,
+                                test_set=args.test_set, seed=args.seed, variant=args.variant,
+                                plot=args.plot)
+    elif args.bench == "pipeline":
         result = bench_pipeline([_size(s) for s in args.size], n_frames=args.frames,
                                 repeats=args.repeats, spp=args.spp, seed=args.seed,
                                 variant=args.variant)
@@ -383,7 +525,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        commands = {"demo": _demo, "render": _render, "process": _process, "bench": _bench}
+        commands = {"demo": _demo, "render": _render, "process": _process,
+                    "calibrate": _calibrate, "bench": _bench}
         return commands[args.command](args)
     except (ValueError, TypeError, OSError) as exc:
         print(f"optitact: error: {exc}", file=sys.stderr)

@@ -128,32 +128,43 @@ def write_json(path: str | os.PathLike, obj) -> None:
 
 
 class ReadingsWriter:
-    """Append readings to a CSV file, one row per frame and element.
+    """Append readings (and estimated forces) to a CSV file, one row per frame and element.
 
     Columns: ``frame, source, element, G, ux, uy, contact, saturated`` (G in
-    grey level x mm^2, u in mm, flags as 0/1). Use as a context manager.
+    grey level x mm^2, u in mm, flags as 0/1), and with ``forces=True`` also
+    ``fx, fy, fz`` (element-local, N) and ``clamped`` (the calibration
+    clamped the reading to its fitted range). Use as a context manager.
     """
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
+    FORCE_COLUMNS = ("fx", "fy", "fz", "clamped")
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, *, forces: bool = False) -> None:
         self.path = Path(path)
+        self.with_forces = forces
         self._fh = self.path.open("w", newline="")
         self._csv = csv.writer(self._fh)
-        self._csv.writerow(self.COLUMNS)
+        self._csv.writerow(self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))
         self.frames = 0
 
-    def write(self, readings, sources: Sequence[str]) -> None:
-        """Write readings of ``len(sources)`` frames (a stack, or one frame)."""
+    def write(self, readings, sources: Sequence[str], forces=None, clamped=None) -> None:
+        """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept."""
         r = readings if readings.is_stack else readings._lifted()
         if len(r) != len(sources):
             raise ShapeError(f"got readings of {len(r)} frames for {len(sources)} sources")
+        if self.with_forces:
+            if forces is None or clamped is None:
+                raise ValueError("this writer has force columns: pass forces and clamped")
+            forces = np.asarray(forces).reshape(len(r), r.n_elements, 3)
+            clamped = np.asarray(clamped).reshape(len(r), r.n_elements)
         e = np.arange(r.n_elements)
         for k, src in enumerate(sources):
-            rows = zip(e, r.G[k], r.u[k, :, 0], r.u[k, :, 1], r.contact[k], r.saturated[k],
-                       strict=True)
-            self._csv.writerows((self.frames, src, int(i), f"{g:.9g}", f"{ux:.9g}", f"{uy:.9g}",
-                                 int(c), int(s)) for i, g, ux, uy, c, s in rows)
+            for i in e:
+                row = [self.frames, src, int(i), f"{r.G[k, i]:.9g}", f"{r.u[k, i, 0]:.9g}",
+                       f"{r.u[k, i, 1]:.9g}", int(r.contact[k, i]), int(r.saturated[k, i])]
+                if self.with_forces:
+                    row += [f"{v:.9g}" for v in forces[k, i]] + [int(clamped[k, i])]
+                self._csv.writerow(row)
             self.frames += 1
 
     def close(self) -> None:

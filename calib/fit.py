@@ -1,0 +1,414 @@
+"""Fitted calibration curves: normal force g(G) and shear f(u) per element, saved as JSON.
+
+Models
+------
+``"ohka"`` -- the sensor's published form, per element ``i``::
+
+    Fz = g_i(G),   Fx = f_i(ux),   Fy = f_i(uy)
+
+``"coupled"`` -- the shear curve depends on the normal load::
+
+    Fz = g_i(G),   (Fx, Fy) = (ux, uy) * g_i(G) / (a_i + b_i sqrt(g_i(G)))
+
+Why the coupled form: the columnar feeler is rigid, so moment balance on the
+cones gives ``sum_k P_k r_k = h F_t`` (``h`` the lever arm), and a cone's
+contact area, hence its grey value, is proportional to its load (Sneddon,
+``A = 2 P tan(alpha) / E*``); the grey-value centroid of the tilted feeler
+is therefore ``sum P_k r_k / sum P_k = h F_t / F_z``. The patches also slide
+by ``F_t / sum k_k`` with Mindlin stiffness ``k = 8 G* a`` and ``a ~ sqrt(P)``,
+i.e. by about ``c F_t / sqrt(F_z)``. Together ``u = F_t (h / F_z + c /
+sqrt(F_z))``, which inverts to the form above with ``a ~ h`` and ``b ~ c``.
+A curve ``f(u)`` alone cannot represent this: the same shift means twice the
+shear at twice the normal load.
+
+Both models use ``g_i(G) = c0 + c1 s + c2 s^2 + c3 s^3`` (``s = G / G_scale``)
+with all ``c >= 0``, so g increases with G; ``f_i(u) = d1 t + d3 t^3``
+(``t = u / u_scale``), ``d >= 0``, odd and increasing; ``a, b >= 0``. Fits are
+bounded linear or non-linear least squares (SciPy) on scaled inputs.
+Outside the fitted range (G above the largest fitted G, |u| beyond the
+largest fitted shift) readings are clamped to the range and flagged.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from optitact.camera import FisheyeCamera
+from optitact.errors import InputError, ShapeError
+from optitact.readings import Readings
+from optitact.sensor import DomeSensor
+
+__all__ = ["MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "fit"]
+
+MODELS = ("ohka", "coupled")
+SCHEMA = "optitact.calibration"
+SCHEMA_VERSION = 1
+#: Largest calibration file read (bytes); a calibration of 41 elements is ~20 kB.
+MAX_FILE_BYTES = 5_000_000
+_G_TERMS = 4
+_F_TERMS = {"ohka": 2, "coupled": 2}
+
+
+class CalibrationMismatchError(InputError):
+    """A calibration was made for another sensor, camera or pipeline."""
+
+
+def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict) -> str:
+    """Short hash of the sensor, camera and pipeline options a calibration belongs to."""
+    key = json.dumps({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
+                      "pipeline": _plain(pipeline_options)}, sort_keys=True)
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def _plain(options: dict) -> dict:
+    """Pipeline options as plain JSON values (drops None, which means 'default')."""
+    return {k: v for k, v in sorted(options.items()) if v is not None and k != "baseline"}
+
+
+def _g_design(s: np.ndarray) -> np.ndarray:
+    return np.stack([np.ones_like(s), s, s**2, s**3], axis=-1)
+
+
+def _f_ohka(t: np.ndarray, d: np.ndarray) -> np.ndarray:
+    return d[0] * t + d[1] * t**3
+
+
+def _shear_coupled(u: np.ndarray, fz: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return u * (fz / (p[0] + p[1] * np.sqrt(fz)))[..., None]
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """Per-element calibration curves for one sensor, camera and pipeline.
+
+    Attributes
+    ----------
+    model : {"ohka", "coupled"}
+    sensor, camera : DomeSensor, FisheyeCamera
+    pipeline_options : dict
+        Options of :class:`optitact.Pipeline` the readings were made with.
+    g : (E, 4) ndarray
+        Normal-force coefficients on ``s = G / g_scale`` (N).
+    g_scale : (E,) ndarray
+    f : (E, 2) ndarray
+        Shear coefficients: ``(d1, d3)`` on ``t = u / u_scale`` (ohka) or
+        ``(a, b)`` (coupled).
+    u_scale : (E,) ndarray
+    g_max : (E,) ndarray
+        Largest fitted G per element; above it G is clamped.
+    u_max : (E,) ndarray
+        Largest fitted ``|u|`` per element (mm); beyond it u is clamped.
+    residuals : dict
+        ``{"fx", "fy", "fz"}`` -> (E,) RMS fit residuals (N), and ``"n"``
+        -> (E,) samples per element.
+    provenance : dict
+        Where the samples came from.
+    """
+
+    model: str
+    sensor: DomeSensor
+    camera: FisheyeCamera
+    pipeline_options: dict
+    g: np.ndarray
+    g_scale: np.ndarray
+    f: np.ndarray
+    u_scale: np.ndarray
+    g_max: np.ndarray
+    u_max: np.ndarray
+    residuals: dict = field(default_factory=dict)
+    provenance: dict = field(default_factory=dict)
+
+    @property
+    def fingerprint(self) -> str:
+        """Hash of the sensor, camera and pipeline options (see :func:`fingerprint`)."""
+        return fingerprint(self.sensor, self.camera, self.pipeline_options)
+
+    # ------------------------------------------------------------------ fitting
+    @classmethod
+    def fit(cls, readings: Readings, forces, *, sensor: DomeSensor, camera: FisheyeCamera,
+            pipeline_options: dict | None = None, model: str = "coupled",
+            provenance: dict | None = None) -> Calibration:
+        """Fit the curves to readings and the true (measured) forces that made them.
+
+        Parameters
+        ----------
+        readings : Readings
+            Stack readings ``(T, E)`` (from :meth:`optitact.Pipeline.process`).
+        forces : (T, E, 3) array_like
+            Element-local forces (N) applied in each frame.
+        sensor, camera : DomeSensor, FisheyeCamera
+            What the frames came from.
+        pipeline_options : dict, optional
+            The pipeline options used for the readings (stored).
+        model : {"ohka", "coupled"}
+        provenance : dict, optional
+            Stored as is (e.g. the set's path and seed).
+
+        Raises
+        ------
+        InputError
+            Unknown model; fewer than 8 usable samples for an element, no
+            spread in G or in u, or non-finite data.
+        ShapeError
+            ``forces`` does not match the readings.
+        """
+        from scipy.optimize import least_squares, lsq_linear
+
+        if model not in MODELS:
+            raise InputError(f"model must be one of {MODELS}, got {model!r}")
+        if not isinstance(readings, Readings) or not readings.is_stack:
+            raise TypeError("readings must be stack Readings (T, E) from Pipeline.process(stack)")
+        f = np.asarray(forces, dtype=np.float64)
+        t_n, n_el = readings.G.shape
+        if f.shape != (t_n, n_el, 3):
+            raise ShapeError(f"forces must have shape {(t_n, n_el, 3)} to match the readings, "
+                             f"got {f.shape}")
+        if not np.isfinite(f).all():
+            raise InputError("forces must be finite")
+        if n_el != sensor.n_elements:
+            raise ShapeError(f"readings have {n_el} elements, the sensor {sensor.n_elements}")
+        g_c = np.zeros((n_el, _G_TERMS))
+        f_c = np.zeros((n_el, 2))
+        g_scale, u_scale = np.ones(n_el), np.ones(n_el)
+        g_max, u_max = np.zeros(n_el), np.zeros(n_el)
+        res = {"fx": np.zeros(n_el), "fy": np.zeros(n_el), "fz": np.zeros(n_el),
+               "n": np.zeros(n_el, int)}
+        for e in range(n_el):
+            ok = readings.contact[:, e] & ~readings.saturated[:, e]
+            G, u, fe = readings.G[ok, e], readings.u[ok, e], f[ok, e]
+            if len(G) < 8:
+                raise InputError(f"element {e}: {len(G)} usable samples (in contact, not "
+                                 f"saturated); a fit needs at least 8")
+            if np.ptp(G) <= 0 or np.ptp(u) <= 0:
+                raise InputError(f"element {e}: the readings do not vary (constant G or u); "
+                                 f"the loads must span a range")
+            g_scale[e] = G.max()
+            s = G / g_scale[e]
+            sol = lsq_linear(_g_design(s), fe[:, 2], bounds=(0.0, np.inf))
+            g_c[e] = sol.x
+            fz_hat = _g_design(s) @ sol.x
+            g_max[e] = G.max()
+            radius = np.hypot(u[:, 0], u[:, 1])
+            u_max[e] = radius.max()
+            u_scale[e] = max(u_max[e], 1e-12)
+            if model == "ohka":
+                tt = (u / u_scale[e]).reshape(-1)
+                a = np.stack([tt, tt**3], axis=-1)
+                f_c[e] = lsq_linear(a, fe[:, :2].reshape(-1), bounds=(0.0, np.inf)).x
+                shear = _f_ohka(u / u_scale[e], f_c[e])
+            else:
+                fzp = np.maximum(fz_hat, 1e-9)
+
+                def resid(p, u=u, fzp=fzp, target=fe[:, :2]):
+                    return (_shear_coupled(u, fzp, p) - target).reshape(-1)
+
+                h0 = max(sensor.lever_arm, 1e-3)
+                sol2 = least_squares(resid, x0=[h0, 0.1 * h0], bounds=([1e-6, 0.0], [np.inf, np.inf]),
+                                     x_scale=[h0, h0])
+                f_c[e] = sol2.x
+                shear = _shear_coupled(u, fzp, sol2.x)
+            res["fz"][e] = math.sqrt(np.mean((fz_hat - fe[:, 2]) ** 2))
+            res["fx"][e] = math.sqrt(np.mean((shear[:, 0] - fe[:, 0]) ** 2))
+            res["fy"][e] = math.sqrt(np.mean((shear[:, 1] - fe[:, 1]) ** 2))
+            res["n"][e] = len(G)
+        return cls(model, sensor, camera, _plain(pipeline_options or {}), g_c, g_scale, f_c,
+                   u_scale, g_max, u_max, res, dict(provenance or {}))
+
+    # ------------------------------------------------------------------ applying
+    def pipeline(self, *, baseline=None, method: str = "fast"):
+        """The :class:`optitact.Pipeline` these curves expect (same sensor, camera, options)."""
+        from optitact.pipeline import Pipeline
+
+        return Pipeline(self.sensor, self.camera, baseline=baseline, method=method,
+                        **{k: v for k, v in self.pipeline_options.items() if k != "method"})
+
+    def check(self, sensor: DomeSensor | None = None, camera: FisheyeCamera | None = None) -> None:
+        """Raise CalibrationMismatchError unless ``sensor``/``camera`` are the calibration's."""
+        if sensor is not None and sensor != self.sensor:
+            raise CalibrationMismatchError(
+                f"this calibration (fingerprint {self.fingerprint}) was made for another sensor")
+        if camera is not None and camera != self.camera:
+            raise CalibrationMismatchError(
+                f"this calibration (fingerprint {self.fingerprint}) was made for a "
+                f"{self.camera.width}x{self.camera.height} camera {self.camera.to_dict()}, "
+                f"got {camera.to_dict()}")
+
+    def forces(self, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
+        """Element-local forces from readings, and the clamp flags.
+
+        Returns
+        -------
+        forces : (E, 3) or (T, E, 3) ndarray
+            0 where there is no contact.
+        clamped : (E,) or (T, E) bool
+            The reading was outside the fitted range and was clamped to it.
+        """
+        if not isinstance(readings, Readings):
+            raise TypeError(f"readings must be Readings, got {type(readings).__name__}")
+        if readings.n_elements != len(self.g):
+            raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
+                             f"{len(self.g)}")
+        G = np.minimum(readings.G, self.g_max)
+        radius = np.hypot(readings.u[..., 0], readings.u[..., 1])
+        over_u = radius > self.u_max
+        scale = np.where(over_u, self.u_max / np.where(radius > 0, radius, 1.0), 1.0)
+        u = readings.u * scale[..., None]
+        clamped = readings.contact & ((readings.G > self.g_max) | over_u)
+        s = G / self.g_scale
+        fz = np.einsum("...ek,ek->...e", _g_design(s), self.g)
+        if self.model == "ohka":
+            t = u / self.u_scale[:, None]
+            shear = self.f[:, 0:1] * t + self.f[:, 1:2] * t**3
+        else:
+            fzp = np.maximum(fz, 0.0)
+            shear = u * (fzp / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fzp)))[..., None]
+        out = np.concatenate([shear, fz[..., None]], axis=-1)
+        out[~readings.contact] = 0.0
+        return out, clamped
+
+    def apply(self, readings: Readings):
+        """A :class:`optitact.forces.ForceField` per frame (a list for stack readings)."""
+        from optitact.forces import ForceField
+
+        f, clamped = self.forces(readings)
+        if readings.is_stack:
+            return [ForceField(self.sensor, f[t], contact=readings.contact[t], clamped=clamped[t],
+                               saturated=readings.saturated[t]) for t in range(len(f))]
+        return ForceField(self.sensor, f, contact=readings.contact, clamped=clamped,
+                          saturated=readings.saturated)
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        """The JSON document (see :meth:`save`)."""
+        from optitact import __version__
+
+        return {
+            "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "library_version": __version__,
+            "model": self.model, "fingerprint": self.fingerprint,
+            "sensor": self.sensor.to_dict(), "camera": self.camera.to_dict(),
+            "pipeline": self.pipeline_options,
+            "elements": {
+                "g": self.g.tolist(), "g_scale": self.g_scale.tolist(), "f": self.f.tolist(),
+                "u_scale": self.u_scale.tolist(), "g_max": self.g_max.tolist(),
+                "u_max": self.u_max.tolist(),
+            },
+            "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
+            "provenance": self.provenance,
+        }
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the calibration as JSON, atomically.
+
+        The file holds the schema version, model, per-element parameters,
+        fitted ranges, residuals, and the sensor, camera and pipeline with
+        their fingerprint.
+        """
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def from_dict(cls, d) -> Calibration:
+        """Build from :meth:`to_dict` output, validating every field."""
+        if not isinstance(d, dict):
+            raise InputError(f"a calibration must be a JSON object, got {type(d).__name__}")
+        if d.get("schema") != SCHEMA:
+            raise InputError(f"not an optitact calibration (schema {d.get('schema')!r})")
+        if d.get("schema_version") != SCHEMA_VERSION:
+            raise InputError(f"calibration schema version {d.get('schema_version')!r} is not "
+                             f"supported (this optitact reads {SCHEMA_VERSION})")
+        for key in ("model", "sensor", "camera", "pipeline", "elements", "fingerprint"):
+            if key not in d:
+                raise InputError(f"calibration is missing {key!r}")
+        model = d["model"]
+        if model not in MODELS:
+            raise InputError(f"calibration model must be one of {MODELS}, got {model!r}")
+        sensor = DomeSensor.from_dict(d["sensor"])
+        camera = FisheyeCamera.from_dict(d["camera"])
+        if not isinstance(d["pipeline"], dict):
+            raise InputError("calibration 'pipeline' must be an object of Pipeline options")
+        n = sensor.n_elements
+        el = d["elements"]
+        if not isinstance(el, dict):
+            raise InputError("calibration 'elements' must be an object")
+
+        def arr(name, shape):
+            if name not in el:
+                raise InputError(f"calibration elements are missing {name!r}")
+            try:
+                a = np.array(el[name], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InputError(f"calibration elements[{name!r}] must hold numbers") from None
+            if a.shape != shape:
+                raise InputError(f"calibration elements[{name!r}] must have shape {shape}, "
+                                 f"got {a.shape}")
+            if not np.isfinite(a).all():
+                raise InputError(f"calibration elements[{name!r}] must be finite")
+            a.flags.writeable = False
+            return a
+
+        cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, _G_TERMS)),
+                  arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
+                  arr("g_max", (n,)), arr("u_max", (n,)),
+                  {k: np.asarray(v) for k, v in dict(d.get("residuals_n", {})).items()},
+                  dict(d.get("provenance", {})))
+        if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
+            raise InputError("calibration scales must be > 0")
+        cal.pipeline()  # the pipeline options must be valid
+        if cal.fingerprint != d["fingerprint"]:
+            raise CalibrationMismatchError(
+                f"calibration fingerprint {d['fingerprint']!r} does not match its own sensor, "
+                f"camera and pipeline ({cal.fingerprint}); the file was edited or is corrupt")
+        return cal
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, *, sensor: DomeSensor | None = None,
+             camera: FisheyeCamera | None = None) -> Calibration:
+        """Read a calibration JSON file (never executes anything from it).
+
+        Raises
+        ------
+        FileNotFoundError
+        InputError
+            Oversized, not JSON, wrong schema or version, malformed fields.
+        CalibrationMismatchError
+            ``sensor``/``camera`` given and not the calibration's.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"calibration file not found: {path}")
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise InputError(f"{path}: {size} bytes is too large for a calibration "
+                             f"(at most {MAX_FILE_BYTES})")
+        try:
+            d = json.loads(path.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path} is not a JSON calibration ({exc})") from None
+        cal = cls.from_dict(d)
+        cal.check(sensor, camera)
+        return cal
+
+
+def fit(calibration_set, *, model: str = "coupled") -> Calibration:
+    """Fit a calibration to a :class:`~optitact.calib.CalibrationSet` (or its path)."""
+    from .sets import CalibrationSet
+
+    cs = calibration_set if isinstance(calibration_set, CalibrationSet) \
+        else CalibrationSet(calibration_set)
+    if not cs.done.any():
+        raise InputError(f"{cs.path} has no finished frames yet")
+    return Calibration.fit(cs.readings(), cs.forces(), sensor=cs.sensor, camera=cs.camera,
+                           pipeline_options=cs.attrs.get("pipeline", {}), model=model,
+                           provenance={"set": str(cs.path), "frames": int(cs.done.sum()),
+                                       "seed": cs.attrs["seed"], "spp": cs.attrs["spp"],
+                                       "design": cs.attrs["design"]})

@@ -1,0 +1,328 @@
+"""Synthetic calibration sets: a load design, rendered frames and their readings in a Zarr store.
+
+A set is a Zarr group whose attributes hold everything that made it (sensor,
+camera, CCD, render settings, spp, seed, design, pipeline options, library
+version) and whose arrays hold, per frame, the true forces, the frame's seed,
+the readings and a ``done`` flag (plus the frames with ``keep_frames``).
+Every array is chunked one frame per chunk and Zarr writes chunks atomically
+(temporary file, then rename); ``done[i]`` is written last, so a run killed
+at any moment leaves only whole frames marked done, and running the same
+command again renders the missing ones -- with their own seeds, so the set is
+identical to an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from optitact._validate import integer, positive, seed_value
+from optitact.camera import FisheyeCamera
+from optitact.ccd import CCD
+from optitact.errors import InputError
+from optitact.readings import Readings
+from optitact.sensor import DomeSensor
+
+__all__ = ["SCHEMA", "Design", "CalibrationSet", "design_forces", "frame_seeds", "generate"]
+
+SCHEMA = "optitact.calibration-set"
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Design:
+    """The load design of a calibration set (N, and fractions of frames).
+
+    Parameters
+    ----------
+    fz_max : float
+        Largest normal force per element (N), default 1.0; normal forces are
+        drawn in ``[0, fz_max]``.
+    shear_max : float
+        Largest shear magnitude per element (N), default 0.5.
+    mu_max : float
+        Largest shear-to-normal ratio, default 0.35 (the contact model's
+        feeler tips over at about 0.37-0.40, beyond which the centroid no
+        longer tells the shear).
+    sweep_fraction : float
+        Fraction of frames given to the pure-normal and pure-shear sweeps
+        (half each), default 0.2; the rest is a scrambled Sobol design.
+    """
+
+    fz_max: float = 1.0
+    shear_max: float = 0.5
+    mu_max: float = 0.35
+    sweep_fraction: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("fz_max", "shear_max", "mu_max"):
+            object.__setattr__(self, name, positive(getattr(self, name), name))
+        frac = positive(self.sweep_fraction, "sweep_fraction", allow_zero=True)
+        if frac > 1:
+            raise InputError(f"sweep_fraction must be in [0, 1], got {frac}")
+        object.__setattr__(self, "sweep_fraction", frac)
+
+    def to_dict(self) -> dict:
+        """JSON-friendly parameters."""
+        return {"fz_max": self.fz_max, "shear_max": self.shear_max, "mu_max": self.mu_max,
+                "sweep_fraction": self.sweep_fraction}
+
+
+def design_forces(n_frames: int, n_elements: int, design: Design, seed: int) -> np.ndarray:
+    """Element-local forces ``(n_frames, n_elements, 3)`` of a calibration set.
+
+    Notes
+    -----
+    * Sobol frames: a scrambled Sobol sequence (seeded) of
+      ``(u1, u2, u3)`` per element sample gives ``Fz = fz_max u1``, shear
+      magnitude ``min(mu_max Fz, shear_max) sqrt(u2)`` (uniform over the
+      allowed disc) and direction ``2 pi u3``.
+    * Normal sweep frames: ``Fz`` on an even grid over ``(0, fz_max]``,
+      shuffled over elements, no shear.
+    * Shear sweep frames: ``Fz = fz_max / 2``, shear along +-x or +-y with
+      magnitudes on an even grid up to the limit.
+    """
+    from scipy.stats import qmc
+
+    n_frames = integer(n_frames, "frames", minimum=1)
+    rng = np.random.default_rng([seed, 1])
+    n_sweep = int(round(design.sweep_fraction * n_frames))
+    n_normal = n_sweep // 2
+    n_shear = n_sweep - n_normal
+    n_sobol = n_frames - n_sweep
+    out = np.zeros((n_frames, n_elements, 3))
+    if n_sobol:
+        sob = qmc.Sobol(3, scramble=True, seed=np.random.default_rng([seed, 0]))
+        m = math.ceil(math.log2(max(n_sobol * n_elements, 2)))
+        u = sob.random_base2(m)[: n_sobol * n_elements].reshape(n_sobol, n_elements, 3)
+        fz = design.fz_max * u[..., 0]
+        mag = np.minimum(design.mu_max * fz, design.shear_max) * np.sqrt(u[..., 1])
+        ang = 2 * np.pi * u[..., 2]
+        out[:n_sobol] = np.stack([mag * np.cos(ang), mag * np.sin(ang), fz], axis=-1)
+    if n_normal:
+        levels = design.fz_max * np.arange(1, n_normal * n_elements + 1) / (n_normal * n_elements)
+        fz = rng.permutation(levels).reshape(n_normal, n_elements)
+        out[n_sobol:n_sobol + n_normal, :, 2] = fz
+    if n_shear:
+        fz = design.fz_max / 2
+        limit = min(design.mu_max * fz, design.shear_max)
+        k = n_shear * n_elements
+        mags = limit * np.arange(1, k + 1) / k
+        dirs = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[np.arange(k) % 4]
+        order = rng.permutation(k)
+        shear = (mags[:, None] * dirs)[order].reshape(n_shear, n_elements, 2)
+        out[n_sobol + n_normal:, :, :2] = shear
+        out[n_sobol + n_normal:, :, 2] = fz
+    return out
+
+
+def frame_seeds(seed: int, n_frames: int) -> np.ndarray:
+    """Per-frame seeds (uint32) of the renders and the camera noise."""
+    return np.random.SeedSequence([seed, 2]).generate_state(n_frames).astype(np.uint32)
+
+
+def _set_attrs(*, sensor, camera, ccd, design, spp, seed, n_frames, keep_frames, settings,
+               pipeline_options) -> dict:
+    from optitact import __version__
+
+    return {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "library_version": __version__,
+            "frames": n_frames, "seed": seed, "spp": spp, "keep_frames": keep_frames,
+            "sensor": sensor.to_dict(), "camera": camera.to_dict(), "ccd": ccd.to_dict(),
+            "design": design.to_dict(), "render_settings": settings,
+            "pipeline": pipeline_options}
+
+
+class CalibrationSet:
+    """A calibration set on disk (read side).
+
+    Attributes
+    ----------
+    path : Path
+    attrs : dict
+        What made the set (see the module docstring).
+    sensor, camera, ccd
+        The set's models.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        import zarr
+
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(f"calibration set not found: {self.path}")
+        try:
+            self._group = zarr.open_group(str(self.path), mode="r")
+        except Exception as exc:  # zarr raises several kinds for a non-store
+            raise InputError(f"{self.path} is not a Zarr calibration set ({exc})") from None
+        self.attrs = dict(self._group.attrs)
+        if self.attrs.get("schema") != SCHEMA:
+            raise InputError(f"{self.path} is not an optitact calibration set "
+                             f"(schema {self.attrs.get('schema')!r})")
+        if self.attrs.get("schema_version") != SCHEMA_VERSION:
+            raise InputError(f"{self.path}: calibration-set schema version "
+                             f"{self.attrs.get('schema_version')!r}; this optitact reads {SCHEMA_VERSION}")
+        self.sensor = DomeSensor.from_dict(self.attrs["sensor"])
+        self.camera = FisheyeCamera.from_dict(self.attrs["camera"])
+        self.ccd = CCD.from_dict(self.attrs["ccd"])
+
+    def __len__(self) -> int:
+        return int(self.attrs["frames"])
+
+    @property
+    def done(self) -> np.ndarray:
+        """(frames,) bool: frames rendered and read."""
+        return np.asarray(self._group["done"][:], dtype=bool)
+
+    @property
+    def complete(self) -> bool:
+        """All frames are done."""
+        return bool(self.done.all())
+
+    def array(self, name: str) -> np.ndarray:
+        """A whole array of the set.
+
+        Names: ``forces``, ``seeds``, ``G``, ``u``, ``contact``, ``saturated``,
+        ``done``, ``baseline`` and (with ``keep_frames``) ``frames``.
+        """
+        if name not in self._group:
+            raise KeyError(f"{self.path} has no array {name!r}")
+        return np.asarray(self._group[name][:])
+
+    def readings(self) -> Readings:
+        """Readings of the done frames, ``(T_done, E)``."""
+        d = self.done
+        return Readings(self.array("G")[d], self.array("u")[d], self.array("contact")[d],
+                        self.array("saturated")[d])
+
+    def forces(self) -> np.ndarray:
+        """True element-local forces of the done frames, ``(T_done, E, 3)``."""
+        return self.array("forces")[self.done]
+
+
+def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor | None = None,
+             camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 64,
+             seed: int = 0, design: Design | None = None, keep_frames: bool = False,
+             variant: str | None = None, pipeline_options: dict | None = None,
+             progress: bool = True) -> CalibrationSet:
+    """Create or finish a synthetic calibration set (resumable).
+
+    Parameters
+    ----------
+    path : path-like
+        The Zarr store (a folder). If it exists it must have been started by
+        the same call (same parameters); its missing frames are then made.
+    frames : int
+        Frames in the set; each loads all elements, so it gives E samples.
+    sensor, camera, ccd : optional
+        Defaults: ``DomeSensor.default()``, ``FisheyeCamera()``, ``CCD()``.
+    spp : int
+        Samples per pixel of each render.
+    seed : int
+        Seed of the design, the no-load baseline and every frame.
+    design : Design, optional
+        Load ranges and the share of sweeps.
+    keep_frames : bool
+        Also store the camera frames.
+    variant : str, optional
+        Mitsuba variant (not part of the set's identity).
+    pipeline_options : dict, optional
+        Options of :class:`optitact.Pipeline` that read the frames.
+    progress : bool
+        Show a progress bar (frames/s, ETA) on stderr.
+
+    Returns
+    -------
+    CalibrationSet
+
+    Raises
+    ------
+    InputError
+        If ``path`` holds a set made with other parameters.
+    """
+    import zarr
+    from tqdm import tqdm
+
+    from optitact.pipeline import Pipeline
+    from optitact.render import RenderSettings, render
+
+    frames = integer(frames, "frames", minimum=1)
+    spp = integer(spp, "spp", minimum=1)
+    seed = seed_value(seed)
+    if seed is None:
+        raise InputError("a calibration set needs an integer seed (it is how frames resume)")
+    sensor = sensor or DomeSensor.default()
+    camera = camera or FisheyeCamera()
+    ccd = ccd or CCD()
+    design = design or Design()
+    options = dict(pipeline_options or {})
+    Pipeline(sensor, camera, **options)  # validate the options before any work
+    from dataclasses import asdict
+
+    attrs = _set_attrs(sensor=sensor, camera=camera, ccd=ccd, design=design, spp=spp, seed=seed,
+                       n_frames=frames, keep_frames=bool(keep_frames),
+                       settings=asdict(RenderSettings()), pipeline_options=options)
+    path = Path(path)
+    n_el, (h, w) = sensor.n_elements, camera.shape
+    if path.exists():
+        group = zarr.open_group(str(path), mode="r+")
+        old = dict(group.attrs)
+        mismatch = sorted(k for k in attrs if k != "library_version" and old.get(k) != attrs[k])
+        if mismatch:
+            raise InputError(f"{path} holds a calibration set made with other settings "
+                             f"({', '.join(mismatch)} differ); use another --out or the same "
+                             f"settings to resume")
+    else:
+        group = zarr.open_group(str(path), mode="w")
+        forces = design_forces(frames, n_el, design, seed)
+        group.create_array("forces", data=forces, chunks=(1, n_el, 3))
+        group.create_array("seeds", data=frame_seeds(seed, frames), chunks=(frames,))
+        group.create_array("G", shape=(frames, n_el), dtype="f8", chunks=(1, n_el), fill_value=0.0)
+        group.create_array("u", shape=(frames, n_el, 2), dtype="f8", chunks=(1, n_el, 2),
+                           fill_value=0.0)
+        group.create_array("contact", shape=(frames, n_el), dtype="bool", chunks=(1, n_el),
+                           fill_value=False)
+        group.create_array("saturated", shape=(frames, n_el), dtype="bool", chunks=(1, n_el),
+                           fill_value=False)
+        if keep_frames:
+            dt = "u1" if ccd.bits == 8 else "u2"
+            group.create_array("frames", shape=(frames, h, w), dtype=dt, chunks=(1, h, w),
+                               fill_value=0)
+        group.create_array("baseline_done", shape=(1,), dtype="bool", chunks=(1,), fill_value=False)
+        group.create_array("done", shape=(frames,), dtype="bool", chunks=(1,), fill_value=False)
+        group.attrs.update(attrs)  # last: a store with attributes has all its arrays
+    if not group["baseline_done"][0]:
+        bseed = int(np.random.SeedSequence([seed, 3]).generate_state(1)[0])
+        empty = render(sensor, np.zeros((n_el, 3)), camera=camera, spp=spp, seed=bseed,
+                       variant=variant)
+        base = ccd.expose(empty, seed=bseed)
+        if "baseline" not in group:
+            group.create_array("baseline", shape=(h, w), dtype=base.dtype, chunks=(h, w))
+        group["baseline"][:] = base
+        group["baseline_done"][0] = True
+    baseline = np.asarray(group["baseline"][:])
+    pipe = Pipeline(sensor, camera, baseline=baseline, **options)
+    done = np.asarray(group["done"][:], dtype=bool)
+    seeds = np.asarray(group["seeds"][:])
+    todo = np.flatnonzero(~done)
+    with tqdm(total=frames, initial=frames - len(todo), unit="frame", desc="calibration set",
+              file=sys.stderr, disable=not progress) as bar:
+        for i in todo:
+            f = np.asarray(group["forces"][i])
+            s = int(seeds[i])
+            radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant)
+            frame = ccd.expose(radiance, seed=s)
+            r = pipe.process(frame)
+            group["G"][i] = r.G
+            group["u"][i] = r.u
+            group["contact"][i] = r.contact
+            group["saturated"][i] = r.saturated
+            if keep_frames:
+                group["frames"][i] = frame
+            group["done"][i] = True
+            bar.update(1)
+    return CalibrationSet(path)
