@@ -6,9 +6,16 @@ Models
 
     Fz = g_i(G),   Fx = f_i(ux),   Fy = f_i(uy)
 
-``"coupled"`` -- the shear curve depends on the normal load::
+``"coupled"`` -- the shear curve depends on the normal load, and the normal
+curve on where the light comes from::
 
-    Fz = g_i(G),   (Fx, Fy) = (ux, uy) * g_i(G) / (a_i + b_i sqrt(g_i(G)))
+    Fz = g_i(G) + s (p_i . u / u_scale),   (Fx, Fy) = (ux, uy) * Fz / (a_i + b_i sqrt(Fz))
+
+with ``s = G / G_scale``. The second term is the brightness gradient across
+the element: the dome is lit from its rim, so a cone nearer the rim gives a
+brighter spot for the same load, and a tilted feeler (which moves load, and
+the centroid, towards one side) changes G at equal Fz -- by up to +-10 % on
+the 45-degree ring of the default sensor.
 
 Why the coupled form: the columnar feeler is rigid, so moment balance on the
 cones gives ``sum_k P_k r_k = h F_t`` (``h`` the lever arm), and a cone's
@@ -105,6 +112,9 @@ class Calibration:
         Largest fitted G per element; above it G is clamped.
     u_max : (E,) ndarray
         Largest fitted ``|u|`` per element (mm); beyond it u is clamped.
+    gu : (E, 2) ndarray
+        Coupled model: the brightness gradient across the element, ``Fz =
+        g(G) + s (gu . u / u_scale)`` (zero for ohka).
     residuals : dict
         ``{"fx", "fy", "fz"}`` -> (E,) RMS fit residuals (N), and ``"n"``
         -> (E,) samples per element.
@@ -122,6 +132,7 @@ class Calibration:
     u_scale: np.ndarray
     g_max: np.ndarray
     u_max: np.ndarray
+    gu: np.ndarray
     residuals: dict = field(default_factory=dict)
     provenance: dict = field(default_factory=dict)
 
@@ -175,6 +186,7 @@ class Calibration:
         if n_el != sensor.n_elements:
             raise ShapeError(f"readings have {n_el} elements, the sensor {sensor.n_elements}")
         g_c = np.zeros((n_el, _G_TERMS))
+        gu = np.zeros((n_el, 2))
         f_c = np.zeros((n_el, 2))
         g_scale, u_scale = np.ones(n_el), np.ones(n_el)
         g_max, u_max = np.zeros(n_el), np.zeros(n_el)
@@ -191,17 +203,22 @@ class Calibration:
                                  f"the loads must span a range")
             g_scale[e] = G.max()
             s = G / g_scale[e]
-            sol = lsq_linear(_g_design(s), fe[:, 2], bounds=(0.0, np.inf))
-            g_c[e] = sol.x
-            fz_hat = _g_design(s) @ sol.x
             g_max[e] = G.max()
             radius = np.hypot(u[:, 0], u[:, 1])
             u_max[e] = radius.max()
             u_scale[e] = max(u_max[e], 1e-12)
+            design = _g_design(s)
+            if model == "coupled":  # + the brightness gradient across the element
+                design = np.concatenate([design, s[:, None] * u / u_scale[e]], axis=1)
+            lo = np.r_[np.zeros(_G_TERMS), np.full(design.shape[1] - _G_TERMS, -np.inf)]
+            sol = lsq_linear(design, fe[:, 2], bounds=(lo, np.inf), method="bvls")
+            g_c[e] = sol.x[:_G_TERMS]
+            gu[e] = sol.x[_G_TERMS:] if model == "coupled" else 0.0
+            fz_hat = np.maximum(design @ sol.x, 0.0)
             if model == "ohka":
                 tt = (u / u_scale[e]).reshape(-1)
                 a = np.stack([tt, tt**3], axis=-1)
-                f_c[e] = lsq_linear(a, fe[:, :2].reshape(-1), bounds=(0.0, np.inf)).x
+                f_c[e] = lsq_linear(a, fe[:, :2].reshape(-1), bounds=(0.0, np.inf), method="bvls").x
                 shear = _f_ohka(u / u_scale[e], f_c[e])
             else:
                 fzp = np.maximum(fz_hat, 1e-9)
@@ -219,7 +236,7 @@ class Calibration:
             res["fy"][e] = math.sqrt(np.mean((shear[:, 1] - fe[:, 1]) ** 2))
             res["n"][e] = len(G)
         return cls(model, sensor, camera, _plain(pipeline_options or {}), g_c, g_scale, f_c,
-                   u_scale, g_max, u_max, res, dict(provenance or {}))
+                   u_scale, g_max, u_max, gu, res, dict(provenance or {}))
 
     # ------------------------------------------------------------------ applying
     def pipeline(self, *, baseline=None, method: str = "fast"):
@@ -262,9 +279,10 @@ class Calibration:
         u = readings.u * scale[..., None]
         clamped = readings.contact & ((readings.G > self.g_max) | over_u)
         s = G / self.g_scale
-        fz = np.einsum("...ek,ek->...e", _g_design(s), self.g)
+        t = u / self.u_scale[:, None]
+        fz = np.einsum("...ek,ek->...e", _g_design(s), self.g) + s * np.sum(t * self.gu, axis=-1)
+        fz = np.maximum(fz, 0.0)
         if self.model == "ohka":
-            t = u / self.u_scale[:, None]
             shear = self.f[:, 0:1] * t + self.f[:, 1:2] * t**3
         else:
             fzp = np.maximum(fz, 0.0)
@@ -293,11 +311,11 @@ class Calibration:
             "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "library_version": __version__,
             "model": self.model, "fingerprint": self.fingerprint,
             "sensor": self.sensor.to_dict(), "camera": self.camera.to_dict(),
-            "pipeline": self.pipeline_options,
+            "pipeline": dict(self.pipeline_options),
             "elements": {
                 "g": self.g.tolist(), "g_scale": self.g_scale.tolist(), "f": self.f.tolist(),
                 "u_scale": self.u_scale.tolist(), "g_max": self.g_max.tolist(),
-                "u_max": self.u_max.tolist(),
+                "u_max": self.u_max.tolist(), "gu": self.gu.tolist(),
             },
             "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
             "provenance": self.provenance,
@@ -358,7 +376,7 @@ class Calibration:
 
         cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, _G_TERMS)),
                   arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
-                  arr("g_max", (n,)), arr("u_max", (n,)),
+                  arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
                   {k: np.asarray(v) for k, v in dict(d.get("residuals_n", {})).items()},
                   dict(d.get("provenance", {})))
         if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):

@@ -268,8 +268,18 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
                        settings=asdict(RenderSettings()), pipeline_options=options)
     path = Path(path)
     n_el, (h, w) = sensor.n_elements, camera.shape
-    if path.exists():
+    if path.exists() and (path / "zarr.json").is_file():
         group = zarr.open_group(str(path), mode="r+")
+        if not dict(group.attrs).get("schema"):
+            # killed while the store was being created (attributes come last): start again
+            import shutil
+
+            shutil.rmtree(path)
+    if path.exists():
+        try:
+            group = zarr.open_group(str(path), mode="r+")
+        except Exception as exc:  # zarr raises several kinds for a non-store
+            raise InputError(f"{path} exists and is not a Zarr calibration set ({exc})") from None
         old = dict(group.attrs)
         mismatch = sorted(k for k in attrs if k != "library_version" and old.get(k) != attrs[k])
         if mismatch:

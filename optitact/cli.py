@@ -65,11 +65,14 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     demo = sub.add_parser(
-        "demo", help="render the 41-element dome under a sample load",
+        "demo", help="render the 41-element dome under a sample load and estimate its forces",
         description="Render the default 41-element dome under a sample indenter load on the "
-                    "fastest Mitsuba variant here, apply the CCD model, and write frame.png, "
-                    "overlay.png, radiance.npy and forces.json (the forces used, the settings "
-                    "and timings) into a folder, whose path is printed on stdout.")
+                    "fastest Mitsuba variant here, apply the CCD model, read the frame with the "
+                    "pipeline and the shipped calibration, and write frame.png, overlay.png (the "
+                    "contact model's patches), forces.png (the estimated force field), "
+                    "estimated_forces.csv, radiance.npy and forces.json (true and estimated "
+                    "forces, settings, timings) into a folder, whose path is printed on stdout. "
+                    "The no-load baseline render is cached in the user cache folder.")
     demo.add_argument("--out", type=Path, default=Path("optitact-demo"),
                       help="output folder (default ./optitact-demo)")
     _add_render_options(demo, spp=64)
@@ -306,6 +309,23 @@ def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contac
     return out
 
 
+def _estimate(sensor: DomeSensor, r: dict, args) -> dict | None:
+    """Demo step 2: no-load baseline (cached render), pipeline and the shipped calibration."""
+    from ._cache import cached_render
+    from .calib import default_calibration
+
+    cal = default_calibration()
+    if cal.camera != r["camera"] or cal.sensor != sensor:
+        print(f"optitact: the shipped calibration is for {cal.camera.width}x{cal.camera.height} "
+              f"frames; skipping the force estimate", file=sys.stderr)
+        return None
+    empty = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=r["camera"],
+                          spp=args.spp, seed=args.seed + 1, variant=args.variant)
+    baseline = r["ccd"].expose(empty, seed=args.seed + 1)
+    readings = cal.pipeline(baseline=baseline).process(r["frame"])
+    return {"field": cal.apply(readings), "readings": readings, "calibration": cal}
+
+
 def _demo(args) -> int:
     from .io import write_json, write_png
     from .loads import indenter_load
@@ -319,7 +339,9 @@ def _demo(args) -> int:
     write_png(out / "frame.png", r["frame"])
     write_png(out / "overlay.png", overlay(r["frame"], sensor, r["camera"], contacts, forces))
     np.save(out / "radiance.npy", r["radiance"])
-    write_json(out / "forces.json", {
+    est = _estimate(sensor, r, args)
+    written = ["frame.png", "overlay.png", "radiance.npy", "forces.json"]
+    meta = {
         "forces_local_n": forces,
         "columns": ["fx", "fy", "fz"],
         "load": "indenter_load(sensor) with its defaults",
@@ -331,9 +353,26 @@ def _demo(args) -> int:
         "camera": r["camera"].to_dict(),
         "ccd": r["ccd"].to_dict(),
         "version": __version__,
-    })
-    print(f"optitact: wrote frame.png, overlay.png, radiance.npy, forces.json to {out}",
-          file=sys.stderr)
+    }
+    if est is not None:
+        from .forces import ForceField
+
+        field = est["field"]
+        field.to_csv(out / "estimated_forces.csv")
+        field.save_plot(out / "forces.png", r["frame"], r["camera"],
+                        title="estimated forces (shipped calibration)")
+        written += ["estimated_forces.csv", "forces.png"]
+        truth = ForceField(sensor, forces)
+        err = field.local - forces
+        meta["estimated_forces_local_n"] = field.local
+        meta["estimate_rmse_n"] = {k: float(np.sqrt(np.mean(err[:, i] ** 2)))
+                                   for i, k in enumerate(("fx", "fy", "fz"))}
+        meta["resultant_n"] = {"true": truth.resultant, "estimated": field.resultant}
+        print("optitact: resultant force (N): true ({:+.3f}, {:+.3f}, {:+.3f}), estimated "
+              "({:+.3f}, {:+.3f}, {:+.3f})".format(*truth.resultant, *field.resultant),
+              file=sys.stderr)
+    write_json(out / "forces.json", meta)
+    print(f"optitact: wrote {', '.join(written)} to {out}", file=sys.stderr)
     print(out)
     return 0
 

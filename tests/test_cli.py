@@ -96,7 +96,9 @@ def test_demo_writes_its_folder(tmp_path, capsys):
     assert cv2.imread(str(out / "overlay.png")).shape == (48, 64, 3)
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["demo", "--help"], ["render", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["demo", "--help"], ["render", "--help"],
+                                  ["calibrate", "generate", "--help"], ["calibrate", "fit", "--help"],
+                                  ["bench", "accuracy", "--help"], ["bench", "pipeline", "--help"]])
 def test_help(argv, capsys):
     with pytest.raises(SystemExit) as e:
         main(argv)

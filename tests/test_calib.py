@@ -1,0 +1,363 @@
+"""Calibration sets (design, resumable generation), fits, calibration files and the CLI around them."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+import optitact
+from optitact.calib import (Calibration, CalibrationMismatchError, CalibrationSet, Design,
+                            design_forces, fit, generate)
+from optitact.cli import main
+from optitact.errors import InputError, ShapeError
+from optitact.readings import Readings
+
+SENSOR = optitact.DomeSensor.default()
+TINY = optitact.FisheyeCamera(width=80, height=60)
+SMALL = optitact.FisheyeCamera(width=160, height=120)
+N = SENSOR.n_elements
+
+
+def read_table(path) -> dict:
+    import csv
+
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0] if k != "source"}
+
+
+# ---------------------------------------------------------------------------- design
+def test_design_ranges_sweeps_and_seed():
+    d = Design()
+    f = design_forces(50, N, d, seed=3)
+    assert f.shape == (50, N, 3)
+    fz, ft = f[..., 2], np.hypot(f[..., 0], f[..., 1])
+    assert fz.min() >= 0 and fz.max() <= d.fz_max
+    assert np.all(ft <= np.minimum(d.mu_max * fz, d.shear_max) + 1e-12)
+    n_sweep = round(d.sweep_fraction * 50)
+    normal = f[50 - n_sweep:50 - n_sweep // 2]
+    assert np.all(normal[..., :2] == 0) and np.all(normal[..., 2] > 0)
+    shear = f[50 - n_sweep // 2:]
+    assert np.allclose(shear[..., 2], d.fz_max / 2) and np.all(np.count_nonzero(shear[..., :2], -1) == 1)
+    np.testing.assert_array_equal(f, design_forces(50, N, d, seed=3))
+    assert not np.array_equal(f, design_forces(50, N, d, seed=4))
+    # the Sobol part fills the allowed region: every quarter of the Fz range is used
+    sob = f[:50 - n_sweep, :, 2].ravel()
+    assert np.all(np.histogram(sob, bins=4, range=(0, 1))[0] > 0.2 * sob.size)
+
+
+@pytest.mark.parametrize("kw, match", [({"fz_max": 0}, "fz_max"), ({"mu_max": -1}, "mu_max"),
+                                       ({"sweep_fraction": 2}, "sweep_fraction")])
+def test_design_errors(kw, match):
+    with pytest.raises(ValueError, match=match):
+        Design(**kw)
+
+
+# ---------------------------------------------------------------------------- fits on an analytic sensor
+def analytic_readings(forces, gain, h=3.0, c=0.2):
+    """Readings of an ideal sensor: G = gain Fz; u = F_t (h / Fz + c / sqrt(Fz)) (the coupled form)."""
+    fz = forces[..., 2]
+    contact = fz > 0
+    safe = np.where(contact, fz, 1.0)
+    g = np.where(contact, gain * fz, 0.0)
+    u = np.where(contact[..., None], forces[..., :2] * (h / safe + c / np.sqrt(safe))[..., None], 0.0)
+    return Readings(g, u, contact, np.zeros_like(contact))
+
+
+@pytest.fixture(scope="module")
+def analytic():
+    forces = design_forces(40, N, Design(), seed=1)
+    gain = np.linspace(50.0, 150.0, N)
+    return forces, analytic_readings(forces, gain)
+
+
+def test_coupled_fit_recovers_an_ideal_sensor_exactly(analytic):
+    forces, r = analytic
+    cal = Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="coupled")
+    est, clamped = cal.forces(r)
+    np.testing.assert_allclose(est, forces, rtol=0, atol=1e-5)
+    assert not clamped.any()
+    np.testing.assert_allclose(cal.f, np.tile([3.0, 0.2], (N, 1)), rtol=1e-4)
+    assert np.all(cal.residuals["fz"] < 1e-5)
+
+
+def test_ohka_fit_recovers_its_own_form_and_not_the_coupled_one(analytic):
+    forces, _ = analytic
+    gain = 100.0
+    fz = forces[..., 2]
+    lin = Readings(gain * fz, forces[..., :2] / 0.4, fz > 0, np.zeros_like(fz, bool))
+    cal = Calibration.fit(lin, forces, sensor=SENSOR, camera=SMALL, model="ohka")
+    np.testing.assert_allclose(cal.forces(lin)[0], forces, rtol=0, atol=1e-6)
+    # on a coupled sensor f(u) alone leaves a shear error the coupled model does not
+    _, r = analytic
+    ohka = Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="ohka")
+    coupled = Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="coupled")
+    e_ohka = np.sqrt(np.mean((ohka.forces(r)[0][..., :2] - forces[..., :2]) ** 2))
+    e_coupled = np.sqrt(np.mean((coupled.forces(r)[0][..., :2] - forces[..., :2]) ** 2))
+    assert e_coupled < 1e-5 < 0.01 < e_ohka
+
+
+def test_g_is_increasing(analytic):
+    forces, r = analytic
+    noisy = Readings(r.G * np.random.default_rng(0).normal(1, 0.05, r.G.shape), r.u, r.contact,
+                     r.saturated)
+    cal = Calibration.fit(noisy, forces, sensor=SENSOR, camera=SMALL, model="coupled")
+    assert np.all(cal.g >= 0)
+    grid = np.linspace(0, 1, 50)
+    s = np.stack([np.ones_like(grid), grid, grid**2, grid**3], -1)
+    assert np.all(np.diff(s @ cal.g.T, axis=0) >= 0)
+
+
+def test_clamping_flags(analytic):
+    forces, r = analytic
+    cal = Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="coupled")
+    big = Readings(r.G[0] * 0 + cal.g_max * 3, r.u[0], np.ones(N, bool), np.zeros(N, bool))
+    est, clamped = cal.forces(big)
+    assert clamped.all()
+    at_max = Readings(cal.g_max.copy(), r.u[0], np.ones(N, bool), np.zeros(N, bool))
+    np.testing.assert_allclose(est[:, 2], cal.forces(at_max)[0][:, 2], rtol=0, atol=1e-12)
+    far = Readings(r.G[0], np.tile([[50.0, 0.0]], (N, 1)), r.contact[0], r.saturated[0])
+    est, clamped = cal.forces(far)
+    assert np.array_equal(clamped, r.contact[0])
+    assert np.all(np.isfinite(est)) and np.all(np.abs(est[:, 0]) < 1.0)
+    field = cal.apply(far)
+    assert np.array_equal(field.clamped, clamped)
+
+
+@pytest.mark.parametrize("case, match", [
+    ("few", "at least 8"), ("constant", "do not vary"), ("shape", "must have shape"),
+    ("nan", "finite"), ("model", "model must be one of"), ("single", "stack Readings")])
+def test_fit_errors(analytic, case, match):
+    forces, r = analytic
+    kw = dict(sensor=SENSOR, camera=SMALL)
+    if case == "few":
+        args = (r[:5], forces[:5])
+    elif case == "constant":
+        args = (Readings(np.where(r.contact, 1.0, 0.0), r.u, r.contact, r.saturated), forces)
+    elif case == "shape":
+        args = (r, forces[:-1])
+    elif case == "nan":
+        f = forces.copy()
+        f[0, 0, 0] = np.nan
+        args = (r, f)
+    elif case == "model":
+        args, kw["model"] = (r, forces), "linear"
+    else:
+        args = (r[0], forces[0])
+    with pytest.raises((ValueError, TypeError), match=match):
+        Calibration.fit(*args, **kw)
+
+
+# ---------------------------------------------------------------------------- files
+@pytest.fixture(scope="module")
+def cal(analytic):
+    forces, r = analytic
+    return Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="coupled",
+                           pipeline_options={"noise_sigma": 0.5})
+
+
+def test_json_round_trip(cal, analytic, tmp_path):
+    _, r = analytic
+    path = cal.save(tmp_path / "c.json")
+    doc = json.loads(path.read_text())
+    assert doc["schema"] == "optitact.calibration" and doc["schema_version"] == 1
+    assert doc["model"] == "coupled" and doc["fingerprint"] == cal.fingerprint
+    back = Calibration.load(path, sensor=SENSOR, camera=SMALL)
+    np.testing.assert_array_equal(back.forces(r)[0], cal.forces(r)[0])
+    assert back.pipeline_options == {"noise_sigma": 0.5}
+    assert back.pipeline().threshold == 1.5
+
+
+def test_fingerprint_mismatch(cal, tmp_path):
+    path = cal.save(tmp_path / "c.json")
+    with pytest.raises(CalibrationMismatchError, match="camera"):
+        Calibration.load(path, camera=optitact.FisheyeCamera())
+    with pytest.raises(CalibrationMismatchError, match="another sensor"):
+        Calibration.load(path, sensor=optitact.DomeSensor(outer_radius=21.0))
+    doc = json.loads(path.read_text())
+    doc["camera"]["fov_deg"] = 150.0  # edited without a new fingerprint
+    path.write_text(json.dumps(doc))
+    with pytest.raises(CalibrationMismatchError, match="does not match"):
+        Calibration.load(path)
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda d: d.update(schema_version=2), "schema version"),
+    (lambda d: d.update(schema="other"), "not an optitact calibration"),
+    (lambda d: d.pop("elements"), "missing 'elements'"),
+    (lambda d: d.update(model="magic"), "model must be one of"),
+    (lambda d: d["elements"].update(g=[[1, 2]]), "shape"),
+    (lambda d: d["elements"].update(g_max=["a"] * 41), "numbers"),
+    (lambda d: d["elements"]["f"][0].__setitem__(0, float("nan")), "finite"),
+    (lambda d: d["pipeline"].update(filter="wavelet"), "filter"),
+])
+def test_bad_calibration_files(cal, tmp_path, edit, match):
+    doc = cal.to_dict()
+    edit(doc)
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=match):
+        Calibration.load(path)
+
+
+def test_truncated_oversized_and_missing_files(cal, tmp_path):
+    path = cal.save(tmp_path / "c.json")
+    path.write_text(path.read_text()[:200])
+    with pytest.raises(InputError, match="not a JSON calibration"):
+        Calibration.load(path)
+    big = tmp_path / "big.json"
+    with big.open("w") as fh:
+        fh.write(" " * 5_000_001)
+    with pytest.raises(InputError, match="too large"):
+        Calibration.load(big)
+    with pytest.raises(FileNotFoundError):
+        Calibration.load(tmp_path / "none.json")
+
+
+def test_default_calibration_loads():
+    from optitact.calib import default_calibration
+
+    c = default_calibration()
+    assert c.sensor == optitact.DomeSensor.default() and c.camera == optitact.FisheyeCamera()
+    assert c.model == "coupled"
+
+
+# ---------------------------------------------------------------------------- sets
+GEN = dict(camera=TINY, spp=2, seed=5, progress=False)
+
+
+def test_generate_stores_everything_and_resumes_identically(tmp_path):
+    a = generate(tmp_path / "a.zarr", frames=3, keep_frames=True, **GEN)
+    assert a.complete and len(a) == 3
+    assert a.attrs["spp"] == 2 and a.attrs["sensor"] == SENSOR.to_dict()
+    assert a.attrs["camera"] == TINY.to_dict() and a.attrs["library_version"] == optitact.__version__
+    np.testing.assert_array_equal(a.forces(), design_forces(3, N, Design(), seed=5))
+    frames = a.array("frames")
+    assert frames.shape == (3, 60, 80) and frames.dtype == np.uint8
+    pipe = optitact.Pipeline(SENSOR, TINY, baseline=a.array("baseline"))
+    np.testing.assert_array_equal(pipe.process(frames).G, a.readings().G)
+    again = generate(tmp_path / "a.zarr", frames=3, keep_frames=True, **GEN)
+    np.testing.assert_array_equal(again.readings().G, a.readings().G)
+    with pytest.raises(InputError, match="other settings .*spp"):
+        generate(tmp_path / "a.zarr", frames=3, keep_frames=True, **(GEN | {"spp": 3}))
+
+
+def test_generate_survives_being_killed(tmp_path):
+    code = ("import optitact\nfrom optitact.calib import generate\n"
+            "generate({path!r}, frames=10, camera=optitact.FisheyeCamera(width=80, height=60), "
+            "spp=2, seed=5, progress=False)\n")
+    killed = tmp_path / "killed.zarr"
+    proc = subprocess.Popen([sys.executable, "-c", code.format(path=str(killed))],
+                            start_new_session=True)
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if (killed / "done").exists() and CalibrationSet(killed).done.sum() >= 2:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    partial = CalibrationSet(killed).done
+    assert 0 < partial.sum() < 10, "the kill must land mid-run for this test to mean anything"
+    resumed = generate(killed, frames=10, **GEN)
+    whole = generate(tmp_path / "whole.zarr", frames=10, **GEN)
+    assert resumed.complete
+    for name in ("G", "u", "contact", "saturated", "forces", "seeds", "baseline"):
+        np.testing.assert_array_equal(resumed.array(name), whole.array(name), err_msg=name)
+
+
+# ---------------------------------------------------------------------------- round trip on renders
+@pytest.fixture(scope="module")
+def small_set(tmp_path_factory):
+    return generate(tmp_path_factory.mktemp("sets") / "s.zarr", frames=16, camera=SMALL, spp=16,
+                    seed=2, progress=False, keep_frames=True)
+
+
+@pytest.mark.render
+def test_generate_fit_apply_round_trip(small_set):
+    """Rendered frames -> fit -> forces: a 160x120 camera at 16 spp is noisy (G/Fz spreads ~20 %
+    per sample; the bench measures the full-size figures), but the forces must follow the
+    truth, and the coupled shear model must beat f(u) alone, as the contact model predicts."""
+    r, truth = small_set.readings(), small_set.forces()
+    c = r.contact
+    assert c.mean() > 0.95
+    rmse = {}
+    for model in ("ohka", "coupled"):
+        est, _ = fit(small_set, model=model).forces(r)
+        rmse[model] = np.sqrt(np.mean((est - truth)[c] ** 2, axis=0))
+        assert np.corrcoef(est[..., 2][c], truth[..., 2][c])[0, 1] > 0.9
+    assert rmse["coupled"][2] < 0.12 and np.all(rmse["coupled"][:2] < 0.04)
+    assert np.all(rmse["coupled"][:2] < 0.7 * rmse["ohka"][:2])
+
+
+@pytest.mark.render
+def test_cli_calibrate_and_process_folder_and_video_agree(small_set, tmp_path, capsys):
+    cal_path = tmp_path / "cal.json"
+    assert main(["calibrate", "fit", str(small_set.path), "--model", "ohka", "--out",
+                 str(cal_path), "--plot", str(tmp_path / "fit.png")]) == 0
+    assert cv2.imread(str(tmp_path / "fit.png")) is not None
+    frames = small_set.array("frames")[:4]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a000.png"), small_set.array("baseline"))
+    video = tmp_path / "clip.mkv"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 10, (160, 120), False)
+    vw.write(small_set.array("baseline"))
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{k:03d}.png"), f)
+        vw.write(f)
+    vw.release()
+    out_png, out_vid = tmp_path / "png.csv", tmp_path / "vid.csv"
+    assert main(["process", str(folder), "--calibration", str(cal_path), "--out", str(out_png),
+                 "--plot", str(tmp_path / "forces.png")]) == 0
+    assert main(["process", str(video), "--calibration", str(cal_path), "--out", str(out_vid)]) == 0
+    a, b = read_table(out_png), read_table(out_vid)
+    for col in ("fx", "fy", "fz", "clamped", "contact"):
+        np.testing.assert_array_equal(a[col], b[col])
+    want, _ = Calibration.load(cal_path).forces(
+        Calibration.load(cal_path).pipeline(baseline=small_set.array("baseline")).process(frames))
+    got = np.stack([a["fx"], a["fy"], a["fz"]], -1).reshape(5, N, 3)[1:]
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
+    assert cv2.imread(str(tmp_path / "forces.png")) is not None
+
+
+def test_cli_process_calibration_errors(cal, tmp_path, capsys):
+    path = cal.save(tmp_path / "c.json")
+    cv2.imwrite(str(tmp_path / "a.png"), np.zeros((48, 64), np.uint8))
+    assert main(["process", str(tmp_path / "a.png"), "--calibration", str(path), "--out",
+                 str(tmp_path / "r.csv")]) == 2
+    assert "is for 160x120 frames" in capsys.readouterr().err
+    cv2.imwrite(str(tmp_path / "b.png"), np.zeros((120, 160), np.uint8))
+    assert main(["process", str(tmp_path / "b.png"), "--calibration", str(path), "--filter",
+                 "median", "--out", str(tmp_path / "r.csv")]) == 2
+    assert "fixes the pipeline options" in capsys.readouterr().err
+    assert main(["process", str(tmp_path / "b.png"), "--plot", str(tmp_path / "p.png"), "--out",
+                 str(tmp_path / "r.csv")]) == 2
+    assert "--plot needs --calibration" in capsys.readouterr().err
+
+
+def test_cli_generate_then_fit(tmp_path, capsys):
+    out = tmp_path / "s.zarr"
+    assert main(["calibrate", "generate", "--frames", "2", "--out", str(out), "--spp", "1",
+                 "--width", "80", "--height", "60"]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert CalibrationSet(out).complete
+    assert main(["calibrate", "fit", str(out), "--out", str(tmp_path / "c.json")]) == 2
+    assert "at least 8" in capsys.readouterr().err
+
+
+def test_calibration_set_errors(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        CalibrationSet(tmp_path / "none.zarr")
+    (tmp_path / "junk").mkdir()
+    with pytest.raises(InputError):
+        CalibrationSet(tmp_path / "junk")
+    with pytest.raises(ShapeError):
+        Calibration.fit(Readings.empty(N, 3), np.zeros((3, N, 2)), sensor=SENSOR, camera=SMALL)
