@@ -126,12 +126,17 @@ def frame_seeds(seed: int, n_frames: int) -> np.ndarray:
     return np.random.SeedSequence([seed, 2]).generate_state(n_frames).astype(np.uint32)
 
 
+def _frame_dtype(ccd: CCD) -> str:
+    return "u1" if ccd.bits == 8 else "u2"
+
+
 def _set_attrs(*, sensor, camera, ccd, design, spp, seed, n_frames, keep_frames, settings,
-               pipeline_options) -> dict:
+               pipeline_options, baseline_frames) -> dict:
     from optitact import __version__
 
     return {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "library_version": __version__,
             "frames": n_frames, "seed": seed, "spp": spp, "keep_frames": keep_frames,
+            "baseline_frames": baseline_frames,
             "sensor": sensor.to_dict(), "camera": camera.to_dict(), "ccd": ccd.to_dict(),
             "design": design.to_dict(), "render_settings": settings,
             "pipeline": pipeline_options}
@@ -187,7 +192,8 @@ class CalibrationSet:
         """A whole array of the set.
 
         Names: ``forces``, ``seeds``, ``G``, ``u``, ``contact``, ``saturated``,
-        ``done``, ``baseline`` and (with ``keep_frames``) ``frames``.
+        ``done``, ``baseline`` (the no-load frames) and (with ``keep_frames``)
+        ``frames``.
         """
         if name not in self._group:
             raise KeyError(f"{self.path} has no array {name!r}")
@@ -208,7 +214,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
              camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 64,
              seed: int = 0, design: Design | None = None, keep_frames: bool = False,
              variant: str | None = None, pipeline_options: dict | None = None,
-             progress: bool = True) -> CalibrationSet:
+             baseline_frames: int = 4, progress: bool = True) -> CalibrationSet:
     """Create or finish a synthetic calibration set (resumable).
 
     Parameters
@@ -232,6 +238,10 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         Mitsuba variant (not part of the set's identity).
     pipeline_options : dict, optional
         Options of :class:`optitact.Pipeline` that read the frames.
+    baseline_frames : int
+        No-load frames rendered for the baseline (default 4): their mean is
+        subtracted and their per-pixel noise sets the threshold (the faint
+        guided light of the background carries Monte Carlo noise of its own).
     progress : bool
         Show a progress bar (frames/s, ETA) on stderr.
 
@@ -252,6 +262,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
 
     frames = integer(frames, "frames", minimum=1)
     spp = integer(spp, "spp", minimum=1)
+    baseline_frames = integer(baseline_frames, "baseline_frames", minimum=1)
     seed = seed_value(seed)
     if seed is None:
         raise InputError("a calibration set needs an integer seed (it is how frames resume)")
@@ -265,7 +276,8 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
 
     attrs = _set_attrs(sensor=sensor, camera=camera, ccd=ccd, design=design, spp=spp, seed=seed,
                        n_frames=frames, keep_frames=bool(keep_frames),
-                       settings=asdict(RenderSettings()), pipeline_options=options)
+                       settings=asdict(RenderSettings()), pipeline_options=options,
+                       baseline_frames=baseline_frames)
     path = Path(path)
     n_el, (h, w) = sensor.n_elements, camera.shape
     if path.exists() and (path / "zarr.json").is_file():
@@ -299,21 +311,20 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         group.create_array("saturated", shape=(frames, n_el), dtype="bool", chunks=(1, n_el),
                            fill_value=False)
         if keep_frames:
-            dt = "u1" if ccd.bits == 8 else "u2"
-            group.create_array("frames", shape=(frames, h, w), dtype=dt, chunks=(1, h, w),
-                               fill_value=0)
-        group.create_array("baseline_done", shape=(1,), dtype="bool", chunks=(1,), fill_value=False)
+            group.create_array("frames", shape=(frames, h, w), dtype=_frame_dtype(ccd),
+                               chunks=(1, h, w), fill_value=0)
+        group.create_array("baseline", shape=(baseline_frames, h, w), dtype=_frame_dtype(ccd),
+                           chunks=(1, h, w), fill_value=0)
+        group.create_array("baseline_done", shape=(baseline_frames,), dtype="bool", chunks=(1,),
+                           fill_value=False)
         group.create_array("done", shape=(frames,), dtype="bool", chunks=(1,), fill_value=False)
         group.attrs.update(attrs)  # last: a store with attributes has all its arrays
-    if not group["baseline_done"][0]:
-        bseed = int(np.random.SeedSequence([seed, 3]).generate_state(1)[0])
-        empty = render(sensor, np.zeros((n_el, 3)), camera=camera, spp=spp, seed=bseed,
+    bseeds = np.random.SeedSequence([seed, 3]).generate_state(baseline_frames)
+    for k in np.flatnonzero(~np.asarray(group["baseline_done"][:], dtype=bool)):
+        empty = render(sensor, np.zeros((n_el, 3)), camera=camera, spp=spp, seed=int(bseeds[k]),
                        variant=variant)
-        base = ccd.expose(empty, seed=bseed)
-        if "baseline" not in group:
-            group.create_array("baseline", shape=(h, w), dtype=base.dtype, chunks=(h, w))
-        group["baseline"][:] = base
-        group["baseline_done"][0] = True
+        group["baseline"][k] = ccd.expose(empty, seed=int(bseeds[k]))
+        group["baseline_done"][k] = True
     baseline = np.asarray(group["baseline"][:])
     pipe = Pipeline(sensor, camera, baseline=baseline, **options)
     done = np.asarray(group["done"][:], dtype=bool)

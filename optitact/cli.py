@@ -21,6 +21,9 @@ from .sensor import DomeSensor
 
 __all__ = ["main", "overlay"]
 
+#: No-load frames the demo renders (once, cached) for its baseline.
+NOLOAD_FRAMES = 4
+
 
 def _int_at_least(minimum: int, what: str):
     """An argparse type: an integer >= ``minimum``."""
@@ -72,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
                     "contact model's patches), forces.png (the estimated force field), "
                     "estimated_forces.csv, radiance.npy and forces.json (true and estimated "
                     "forces, settings, timings) into a folder, whose path is printed on stdout. "
-                    "The no-load baseline render is cached in the user cache folder.")
+                    "The no-load baseline renders are cached in the user cache folder.")
     demo.add_argument("--out", type=Path, default=Path("optitact-demo"),
                       help="output folder (default ./optitact-demo)")
     _add_render_options(demo, spp=64)
@@ -319,9 +322,12 @@ def _estimate(sensor: DomeSensor, r: dict, args) -> dict | None:
         print(f"optitact: the shipped calibration is for {cal.camera.width}x{cal.camera.height} "
               f"frames; skipping the force estimate", file=sys.stderr)
         return None
-    empty = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=r["camera"],
-                          spp=args.spp, seed=args.seed + 1, variant=args.variant)
-    baseline = r["ccd"].expose(empty, seed=args.seed + 1)
+    baseline = []
+    for k in range(NOLOAD_FRAMES):  # their mean and per-pixel noise (see Pipeline)
+        empty = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=r["camera"],
+                              spp=args.spp, seed=args.seed + 1 + k, variant=args.variant)
+        baseline.append(r["ccd"].expose(empty, seed=args.seed + 1 + k))
+    baseline = np.stack(baseline)
     readings = cal.pipeline(baseline=baseline).process(r["frame"])
     return {"field": cal.apply(readings), "readings": readings, "calibration": cal}
 

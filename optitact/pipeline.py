@@ -478,8 +478,11 @@ class Pipeline:
         the steps one after another on the whole frame. They compute the
         same sums and agree to floating-point rounding.
     baseline : (H, W) or (T, H, W) array_like, optional
-        No-load frame (a stack is averaged); None subtracts nothing (for
-        frames that are already background-free). See :meth:`with_baseline`.
+        No-load frame, or a stack of them: the mean is subtracted, and from
+        two frames on their per-pixel temporal noise raises the threshold
+        where the background is noisier than ``noise_sigma`` (see
+        ``threshold_map``). None subtracts nothing (for frames that are
+        already background-free). See :meth:`with_baseline`.
     filter : {"none", "gaussian", "median"}
         Denoising before the threshold, default ``"none"``.
     filter_size : float
@@ -548,8 +551,16 @@ class Pipeline:
         # A separable Gaussian k (x) k scales white noise by its L2 norm, sum(k**2), and
         # correlates it over 1 / sum(k**2)**2 pixels (4 pi sigma^2).
         gain = float(np.sum(_gaussian_kernel(filter_size) ** 2)) if filter == "gaussian" else 1.0
-        #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is dark.
+        #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is
+        #: dark: ``k * noise_sigma`` (times the filter's noise gain); see ``threshold_map``.
         self.threshold = self.k * self.noise_sigma * gain
+        self._baseline_input = baseline
+        self.baseline, self.noise_map = (None, None) if baseline is None \
+            else self._check_baseline(baseline)
+        #: Per-pixel threshold (H, W) when the baseline is a stack: ``max(threshold, k *
+        #: noise_map * gain)``; None otherwise.
+        self.threshold_map = None if self.noise_map is None else np.maximum(
+            self.threshold, self.k * self.noise_map * gain)
         self._geometry = dict(radius=radius, grid_mm=grid_mm)  # as given: replace() hits the cache
         self.grids = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
         self._fold = _fold(self.grids, camera.shape)
@@ -558,18 +569,42 @@ class Pipeline:
         # the floor adds that count and 3 of its (Poisson) standard deviations.
         n_false = self._fold.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
-        self.floor = samples / gain**2 * self.threshold * self._fold.pixel_area
-        self.baseline = None if baseline is None else self._check_baseline(baseline)
+        fold = self._fold
+        if self.threshold_map is None:
+            self._thr_entries = np.full(len(fold.pixel), self.threshold)
+        else:
+            self._thr_entries = self.threshold_map.reshape(-1)[fold.pixel]
+        region_thr = np.bincount(fold.label, self._thr_entries, minlength=len(fold.n_pixels))
+        region_thr = np.divide(region_thr, fold.n_pixels, out=np.zeros(len(fold.n_pixels)),
+                               where=fold.n_pixels > 0)
+        self.floor = samples / gain**2 * region_thr * fold.pixel_area
         self._levels: dict = {}
         self._base_entries = (np.zeros(len(self._fold.pixel)) if self.baseline is None
                               else self.baseline.reshape(-1)[self._fold.pixel])
 
     # ------------------------------------------------------------------ set-up
-    def _check_baseline(self, baseline) -> np.ndarray:
+    def _check_baseline(self, baseline) -> tuple[np.ndarray, np.ndarray | None]:
+        """The baseline's mean and, for a stack of two or more frames, its per-pixel noise.
+
+        The noise map is the temporal standard deviation of the no-load frames,
+        made conservative where it is estimated from few frames (the variance is
+        taken as the largest in each 3 x 3 neighbourhood, then smoothed with a
+        Gaussian of 1 pixel), times ``sqrt(1 + 1/T)`` for the noise of the mean.
+        """
+        import cv2
+        from scipy.ndimage import maximum_filter
+
         stack, _ = check_frames(baseline, self.camera, "baseline")
-        b = stack.astype(np.float64).mean(axis=0)
+        frames = stack.astype(np.float64)
+        b = frames.mean(axis=0)
         b.flags.writeable = False
-        return b
+        if len(frames) < 2:
+            return b, None
+        var = maximum_filter(frames.var(axis=0, ddof=1), size=3, mode="nearest")
+        var = cv2.GaussianBlur(var, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT_101)
+        noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
+        noise.flags.writeable = False
+        return b, noise
 
     def _options(self) -> dict:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
@@ -581,7 +616,7 @@ class Pipeline:
 
         A new ``filter`` without a ``filter_size`` takes that filter's default size.
         """
-        opts = self._options() | {"baseline": self.baseline} | changes
+        opts = self._options() | {"baseline": self._baseline_input} | changes
         if "filter" in changes and "filter_size" not in changes:
             opts["filter_size"] = None
         return Pipeline(self.sensor, self.camera, **opts)
@@ -651,7 +686,8 @@ class Pipeline:
     def _reference(self, frame: np.ndarray) -> Readings:
         img = subtract_baseline(frame, self.baseline, clip=self.filter == "none")
         img = denoise(img, method=self.filter, size=self.filter_size)
-        img = apply_threshold(img, self.threshold)
+        img = apply_threshold(img, self.threshold if self.threshold_map is None
+                              else self.threshold_map)
         g, m = integrate(dewarp(img, self.grids), self.grids)
         level = _saturation_level(frame.dtype, self.saturation)
         hot = dewarp((frame >= level).astype(np.float64), self.grids)
@@ -670,25 +706,25 @@ class Pipeline:
         """
         key = dtype.str
         if key not in self._levels:
-            b = self._base_entries
+            b, thr = self._base_entries, self._thr_entries
             sat = _saturation_level(dtype, self.saturation)
             if dtype.kind in "ui":
                 top = np.iinfo(dtype).max
                 # The largest n with n - b <= threshold in float64, as the reference
                 # tests it: floor(b + threshold) can be one off after rounding.
-                n = np.floor(b + self.threshold)
-                n += (n + 1.0) - b <= self.threshold
-                n -= n - b > self.threshold
+                n = np.floor(b + thr)
+                n += (n + 1.0) - b <= thr
+                n -= n - b > thr
                 level = np.clip(n, 0, top).astype(dtype)
             else:
-                level = (b + self.threshold).astype(dtype)
+                level = (b + thr).astype(dtype)
                 if dtype != np.float64:  # round up so no value at or below the float64 level passes
-                    low = level.astype(np.float64) < b + self.threshold
+                    low = level.astype(np.float64) < b + thr
                     level[low] = np.nextafter(level[low], np.inf)
             if math.isinf(sat):
                 watch = np.zeros(0, np.intp)
             else:
-                watch = np.flatnonzero(b + self.threshold >= sat - 1e-9 * max(1.0, sat))
+                watch = np.flatnonzero(b + thr >= sat - 1e-9 * max(1.0, sat))
             self._levels[key] = (level, watch, sat)
         return self._levels[key]
 
@@ -752,7 +788,7 @@ class Pipeline:
             img = denoise(subtract_baseline(crop, base, clip=False), method=self.filter,
                           size=self.filter_size)
             vals = np.take(img, local)
-            lit = np.flatnonzero(vals > self.threshold)
+            lit = np.flatnonzero(vals > self._thr_entries)
             idx.append(i * n_ent + lit)
             v.append(vals[lit])
             hot.append(i * n_ent + np.flatnonzero(np.take(crop, local) >= sat))

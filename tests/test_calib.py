@@ -306,10 +306,11 @@ def test_cli_calibrate_and_process_folder_and_video_agree(small_set, tmp_path, c
     frames = small_set.array("frames")[:4]
     folder = tmp_path / "frames"
     folder.mkdir()
-    cv2.imwrite(str(folder / "a000.png"), small_set.array("baseline"))
+    base = small_set.array("baseline")[0]
+    cv2.imwrite(str(folder / "a000.png"), base)
     video = tmp_path / "clip.mkv"
     vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 10, (160, 120), False)
-    vw.write(small_set.array("baseline"))
+    vw.write(base)
     for k, f in enumerate(frames):
         cv2.imwrite(str(folder / f"f{k:03d}.png"), f)
         vw.write(f)
@@ -322,7 +323,7 @@ def test_cli_calibrate_and_process_folder_and_video_agree(small_set, tmp_path, c
     for col in ("fx", "fy", "fz", "clamped", "contact"):
         np.testing.assert_array_equal(a[col], b[col])
     want, _ = Calibration.load(cal_path).forces(
-        Calibration.load(cal_path).pipeline(baseline=small_set.array("baseline")).process(frames))
+        Calibration.load(cal_path).pipeline(baseline=base).process(frames))
     got = np.stack([a["fx"], a["fy"], a["fz"]], -1).reshape(5, N, 3)[1:]
     np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
     assert cv2.imread(str(tmp_path / "forces.png")) is not None

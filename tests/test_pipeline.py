@@ -515,9 +515,10 @@ def test_reference_and_fast_agree_on_ground_truth(noisy_scene):
     ``A 2 pi s^2 (1 - t / A)`` above t.
     """
     frame, base = noisy_scene
-    fast, ref = _fast_ref(Pipeline(SENSOR, CAM, baseline=base, noise_sigma=1.0))
+    # the mean frame as baseline: one threshold everywhere (a stack would add a noise map)
+    fast, ref = _fast_ref(Pipeline(SENSOR, CAM, baseline=base.mean(axis=0), noise_sigma=1.0))
     t = fast.threshold
-    assert t == 3.0
+    assert t == 3.0 and fast.threshold_map is None
     for r in (fast.process(frame), ref.process(frame)):
         for e, c, s, a in scene_spots(2):
             np.testing.assert_allclose(r.u[e], c, rtol=0, atol=0.04)
@@ -963,3 +964,33 @@ def test_processing_frames_never_imports_mitsuba():
     )
     subprocess.run([sys.executable, "-c", code], check=True)
 
+
+
+def test_noise_map_from_a_baseline_stack():
+    """A stack baseline raises the threshold where the background is noisy, and only there."""
+    rng = np.random.default_rng(4)
+    noisy = np.zeros(SMALL.shape, bool)
+    noisy[40:60, 50:90] = True
+    sigma = np.where(noisy, 6.0, 0.3)
+    stack = np.clip(np.rint(30 + rng.normal(0, 1, (8,) + SMALL.shape) * sigma), 0, 255).astype(np.uint8)
+    pipe = Pipeline(SENSOR, SMALL, baseline=stack)
+    assert pipe.threshold_map.shape == SMALL.shape
+    inner = np.zeros_like(noisy)
+    inner[44:56, 54:86] = True  # away from the 3 x 3 + blur spread at the border
+    # 3 sigma sqrt(1 + 1/8) = 19.1 where sigma = 6; estimated from 8 frames with the
+    # conservative 3 x 3 maximum, so a little above, never far below
+    ratio = pipe.threshold_map[inner] / (3 * 6.0 * np.sqrt(1.125))
+    assert ratio.min() > 0.9 and ratio.max() < 1.7 and 1.1 < np.median(ratio) < 1.5
+    quiet = ~noisy & (np.abs(np.arange(SMALL.width) - 70) > 30)[None]
+    assert np.all(pipe.threshold_map >= pipe.threshold)
+    assert np.all(pipe.threshold_map[quiet] < 3.5)  # 3 x ~0.4 grey levels after rounding, x 1.3 (max)
+    fresh = np.clip(np.rint(30 + rng.normal(0, 1, (20,) + SMALL.shape) * sigma), 0, 255)
+    r = pipe.process(fresh.astype(np.uint8))
+    assert r.contact.mean() < 0.01  # the noisy patch does not read as contact
+    fast, ref = _fast_ref(pipe)
+    assert_same_readings(fast.process(fresh[:3].astype(np.uint8)), ref.process(fresh[:3].astype(np.uint8)),
+                         g_rtol=1e-12, u_atol=1e-12)
+    single = Pipeline(SENSOR, SMALL, baseline=stack[0])
+    assert single.threshold_map is None
+    assert single.replace(k=2.0).threshold_map is None
+    assert pipe.replace(k=2.0).threshold_map is not None
