@@ -362,3 +362,25 @@ def test_calibration_set_errors(tmp_path):
         CalibrationSet(tmp_path / "junk")
     with pytest.raises(ShapeError):
         Calibration.fit(Readings.empty(N, 3), np.zeros((3, N, 2)), sensor=SENSOR, camera=SMALL)
+
+
+@pytest.mark.render
+def test_bench_accuracy_json(small_set, tmp_path, capsys):
+    held_out = generate(tmp_path / "t.zarr", frames=4, camera=SMALL, spp=16, seed=9, progress=False)
+    plot = tmp_path / "errors.png"
+    assert main(["bench", "accuracy", "--calibration-set", str(small_set.path), "--test-set",
+                 str(held_out.path), "--plot", str(plot), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["test_set"]["samples"] == 4 * N and out["calibration_set"]["frames"] == 16
+    keys = {"fx_rmse_n", "fy_rmse_n", "fz_rmse_n", "fx_rmse_pct_fs", "fy_rmse_pct_fs",
+            "fz_rmse_pct_fs", "max_abs_error_n", "contact_flag_error_rate", "clamped_rate"}
+    for model in ("ohka", "coupled"):
+        m = out["models"][model]
+        assert keys <= set(m)
+        assert 0 < m["fz_rmse_n"] < 0.2 and 0 <= m["contact_flag_error_rate"] < 0.2
+        assert m["fz_rmse_pct_fs"] == pytest.approx(100 * m["fz_rmse_n"], abs=1e-3)
+    assert out["models"]["coupled"]["fx_rmse_n"] < out["models"]["ohka"]["fx_rmse_n"]
+    assert cv2.imread(str(plot)) is not None
+    assert main(["bench", "accuracy", "--calibration-set", str(small_set.path), "--test-set",
+                 str(small_set.path)]) == 2
+    assert "another seed" in capsys.readouterr().err
