@@ -213,9 +213,9 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
 
 
 def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
-                   size: tuple[int, int] = (640, 480), calibration_set=None, test_set=None,
-                   seed: int = 0, variant: str | None = None, plot=None,
-                   contact_min_n: float = 0.01) -> dict:
+                   test_spp: int | None = None, size: tuple[int, int] = (640, 480),
+                   calibration_set=None, test_set=None, seed: int = 0,
+                   variant: str | None = None, plot=None, contact_min_n: float = 0.01) -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -223,7 +223,12 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     frames, test_frames : int
         Frames of the calibration and the held-out set (41 samples each).
     spp : int
-        Samples per pixel of the renders.
+        Samples per pixel of the calibration renders.
+    test_spp : int, optional
+        Samples per pixel of the held-out renders (default ``spp``). Monte
+        Carlo noise is a property of the simulation, not of the sensor; a
+        higher ``test_spp`` measures the calibration against frames whose
+        noise is the camera's.
     size : (int, int)
         Frame width and height.
     calibration_set, test_set : path-like, optional
@@ -256,15 +261,16 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                            height=integer(height, "height", minimum=2))
     sets = cache_dir() / "sets"
 
-    def get(given, n, s, tag):
+    def get(given, n, s, tag, n_spp):
         if given is not None:
             return CalibrationSet(given)
-        path = sets / f"{tag}-{width}x{height}-f{n}-spp{spp}-seed{s}.zarr"
+        path = sets / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}.zarr"
         print(f"optitact: bench accuracy: {tag} set {path}", file=sys.stderr)
-        return generate(path, frames=n, camera=camera, spp=spp, seed=s, variant=variant)
+        return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant)
 
-    cs = get(calibration_set, frames, seed, "calibration")
-    ts = get(test_set, test_frames, seed + 1000, "test")
+    test_spp = spp if test_spp is None else integer(test_spp, "test_spp", minimum=1)
+    cs = get(calibration_set, frames, seed, "calibration", spp)
+    ts = get(test_set, test_frames, seed + 1000, "test", test_spp)
     if ts.attrs["seed"] == cs.attrs["seed"]:
         raise ValueError("the held-out set must have another seed than the calibration set")
     truth = ts.forces()
@@ -272,6 +278,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     design = cs.attrs["design"]
     fs = np.array([design["shear_max"], design["shear_max"], design["fz_max"]])
     out: dict = {"size": f"{camera.width}x{camera.height}", "spp": int(cs.attrs["spp"]),
+                 "test_spp": int(ts.attrs["spp"]),
                  "calibration_set": {"path": str(cs.path), "frames": int(cs.done.sum()),
                                      "seed": cs.attrs["seed"]},
                  "test_set": {"path": str(ts.path), "frames": int(ts.done.sum()),

@@ -227,7 +227,11 @@ def _parser() -> argparse.ArgumentParser:
                       help="calibration frames (default 100)")
     bacc.add_argument("--test-frames", type=_positive_int, default=30,
                       help="held-out frames (default 30)")
-    bacc.add_argument("--spp", type=_positive_int, default=64, help="samples per pixel (default 64)")
+    bacc.add_argument("--spp", type=_positive_int, default=64,
+                      help="samples per pixel of the calibration set (default 64)")
+    bacc.add_argument("--test-spp", type=_positive_int, default=None,
+                      help="samples per pixel of the held-out set (default: --spp); Monte Carlo "
+                           "noise is the simulation's, not the sensor's")
     bacc.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
     bacc.add_argument("--calibration-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this calibration set instead of generating one")
@@ -551,7 +555,8 @@ def _bench(args) -> int:
         from .bench import bench_accuracy
 
         result = bench_accuracy(frames=args.frames, test_frames=args.test_frames, spp=args.spp,
-                                size=_size(args.size), calibration_set=args.calibration_set,
+                                test_spp=args.test_spp, size=_size(args.size),
+                                calibration_set=args.calibration_set,
                                 test_set=args.test_set, seed=args.seed, variant=args.variant,
                                 plot=args.plot)
     elif args.bench == "pipeline":
