@@ -30,8 +30,8 @@ from optitact.sensor import DomeSensor
 from ._backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
 from .scene import RenderSettings
 
-__all__ = ["render", "render_contacts", "RenderSettings", "select_variant", "active_variant", "find_libllvm",
-           "PREFERRED_VARIANTS", "pass_seeds"]
+__all__ = ["render", "render_contacts", "spot_pixels", "RenderSettings", "select_variant",
+           "active_variant", "find_libllvm", "PREFERRED_VARIANTS", "pass_seeds"]
 
 #: Samples per pixel rendered in one Mitsuba launch; larger spp runs as several passes.
 SPP_PER_PASS = 16
@@ -58,7 +58,8 @@ def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None
 
 def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, spp: int = 64,
            seed: int = 0, variant: str | None = None, settings: RenderSettings | None = None,
-           crop: tuple[int, int, int, int] | None = None, progress: bool = False) -> np.ndarray:
+           crop: tuple[int, int, int, int] | None = None, pixels=None, background=None,
+           progress: bool = False) -> np.ndarray:
     """Render the radiance image the camera sees for element-local forces.
 
     Parameters
@@ -79,6 +80,14 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
         Physical and numerical settings, default ``RenderSettings()``.
     crop : (row0, col0, height, width), optional
         Render only this window; the result then has shape ``(height, width)``.
+    pixels : (H, W) bool array_like, optional
+        Render only these pixels (e.g. :func:`spot_pixels`), in one launch
+        with a packed film; the others come from ``background`` (or are 0).
+        Each rendered pixel is integrated exactly as in a full frame.
+    background : (H, W) array_like, optional
+        With ``pixels``: the image the rendered pixels are composited over,
+        typically a cached no-load render (the guided light does not depend
+        on a few small contacts far away).
     progress : bool
         Show a progress bar over render passes on stderr.
 
@@ -98,14 +107,14 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
     check_forces(forces, sensor)
     return render_contacts(sensor, contact_patches(sensor, forces), camera=camera, spp=spp,
                            seed=seed, variant=variant, settings=settings, crop=crop,
-                           progress=progress)
+                           pixels=pixels, background=background, progress=progress)
 
 
 def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                     camera: FisheyeCamera | None = None, spp: int = 64, seed: int = 0,
                     variant: str | None = None, settings: RenderSettings | None = None,
-                    crop: tuple[int, int, int, int] | None = None,
-                    progress: bool = False) -> np.ndarray:
+                    crop: tuple[int, int, int, int] | None = None, pixels=None,
+                    background=None, progress: bool = False) -> np.ndarray:
     """Render given contact patches (e.g. from :func:`optitact.contact_patches`).
 
     Parameters are those of :func:`render`, with ``contacts`` in place of
@@ -127,11 +136,14 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     if seed is None:
         raise InputError("seed must be a non-negative integer, got None")
     crop = _check_crop(crop, camera)
+    index, background = _check_pixels(pixels, background, camera, crop)
+    if index is not None and index.size == 0:
+        return background.copy()
 
     mi, _ = select_variant(variant)
     from .scene import build_scene
 
-    scene = build_scene(mi, sensor, camera, contacts, settings, crop=crop)
+    scene = build_scene(mi, sensor, camera, contacts, settings, crop=crop, pixels=index)
     n_passes = -(-spp // SPP_PER_PASS)
     counts = [spp // n_passes + (1 if i < spp % n_passes else 0) for i in range(n_passes)]
     acc = None
@@ -143,4 +155,60 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     for count, pass_seed in passes:
         img = np.asarray(mi.render(scene, spp=count, seed=pass_seed), dtype=np.float64)[..., 0]
         acc = img * count if acc is None else acc + img * count
-    return (acc / spp).astype(np.float32)
+    img = (acc / spp).astype(np.float32)
+    if index is None:
+        return img
+    out = background.copy()
+    out.reshape(-1)[index] = img.reshape(-1)[:index.size]
+    return out
+
+
+def _check_pixels(pixels, background, camera: FisheyeCamera, crop):
+    """Validate ``pixels``/``background``: flat indices and a float32 canvas, or (None, None)."""
+    if pixels is None:
+        if background is not None:
+            raise InputError("background is only used with pixels=")
+        return None, None
+    if crop is not None:
+        raise InputError("give crop or pixels, not both")
+    mask = np.asarray(pixels)
+    if mask.dtype != bool:
+        raise TypeError(f"pixels must be a bool mask of shape {camera.shape}, got dtype {mask.dtype}")
+    if mask.shape != camera.shape:
+        raise InputError(f"pixels must have the camera's shape {camera.shape}, got {mask.shape}")
+    if background is None:
+        canvas = np.zeros(camera.shape, np.float32)
+    else:
+        canvas = np.asarray(background)
+        if canvas.dtype.kind not in "uif":
+            raise TypeError(f"background must be a real image, got dtype {canvas.dtype}")
+        if canvas.shape != camera.shape:
+            raise InputError(f"background must have the camera's shape {camera.shape}, got "
+                             f"{canvas.shape}")
+        if not np.isfinite(canvas).all():
+            raise InputError("background must be finite")
+        canvas = canvas.astype(np.float32)
+    return np.flatnonzero(mask), canvas
+
+
+def spot_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces, *,
+                margin: float = 0.0) -> np.ndarray:
+    """(H, W) bool: the pixels the pipeline reads for the loaded elements (where spots can show).
+
+    The union of the region footprints (:func:`optitact.pipeline.split_regions`)
+    of elements with ``Fz > 0``, grown by ``margin`` pixels.
+    """
+    from optitact.pipeline import Pipeline
+
+    f = check_forces(forces, sensor)
+    pipe = Pipeline(sensor, camera)
+    fold = pipe._fold
+    mask = np.zeros(camera.height * camera.width, bool)
+    mask[fold.pixel[np.isin(fold.label, np.flatnonzero(f[:, 2] > 0))]] = True
+    mask = mask.reshape(camera.shape)
+    if margin > 0:
+        import cv2
+
+        r = int(np.ceil(margin))
+        mask = cv2.dilate(mask.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+    return mask

@@ -179,6 +179,7 @@ def _mi_mesh(mi, name: str, data, props) -> object:
 
 
 _SENSOR_REGISTERED: set = set()
+_PACKED_REGISTERED: set = set()
 
 
 def register_fisheye(mi) -> str:
@@ -225,8 +226,74 @@ def register_fisheye(mi) -> str:
     return name
 
 
+#: Width of the packed film that holds a pixel list (see :func:`build_scene`).
+PACKED_WIDTH = 256
+
+
+def register_packed_fisheye(mi) -> str:
+    """Register the fisheye that renders a list of image pixels packed into a small film.
+
+    Film pixel ``k`` (row-major) is image pixel ``(rows[k], cols[k])``; a
+    sample keeps its sub-pixel position, so each listed pixel is integrated
+    exactly as in a full frame. Film pixels past the list look away from the
+    dome (they read 0). The tables are set on the loaded sensor by
+    :func:`build_scene`.
+    """
+    name = "optitact_fisheye_packed"
+    if mi.variant() in _PACKED_REGISTERED:
+        return name
+    import drjit as dr
+
+    class PackedFisheye(mi.Sensor):
+        """Equidistant fisheye rendering only listed pixels; same model as :class:`FisheyeCamera`."""
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.focal = float(props.get("focal_px"))
+            self.cz = float(props.get("camera_z"))
+            self.image_w = float(props.get("image_width"))
+            self.image_h = float(props.get("image_height"))
+            self.n_pixels = 0
+            self.rows = mi.Float(0.0)
+            self.cols = mi.Float(0.0)
+
+        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
+                       active=True):
+            film = self.film()
+            p = position_sample * mi.ScalarVector2f(film.size())
+            fx, fy = dr.floor(p.x), dr.floor(p.y)
+            k = mi.UInt32(fy) * mi.UInt32(int(film.size()[0])) + mi.UInt32(fx)
+            listed = k < self.n_pixels
+            k = dr.select(listed, k, 0)
+            x = dr.gather(mi.Float, self.cols, k) + (p.x - fx)  # film x = col + 0.5 at the centre
+            y = dr.gather(mi.Float, self.rows, k) + (p.y - fy)
+            dx = x - 0.5 * self.image_w
+            dy = y - 0.5 * self.image_h
+            r = dr.sqrt(dx * dx + dy * dy)
+            alpha = r / self.focal
+            s = dr.select(r > 1e-12, dr.sin(alpha) / r, 0.0)
+            d = mi.Vector3f(dx * s, dy * s, dr.cos(alpha))
+            d = dr.select(listed, d, mi.Vector3f(0.0, 0.0, -1.0))
+            ray = mi.Ray3f(mi.Point3f(0.0, 0.0, self.cz), d, time, [])
+            return ray, mi.Spectrum(1.0)
+
+        def sample_ray_differential(self, time, wavelength_sample, position_sample,
+                                    aperture_sample, active=True):
+            ray, weight = self.sample_ray(time, wavelength_sample, position_sample,
+                                          aperture_sample, active)
+            return mi.RayDifferential3f(ray), weight
+
+        def to_string(self):
+            return f"PackedFisheye[focal_px={self.focal}, z={self.cz}, pixels={self.n_pixels}]"
+
+    mi.register_sensor(name, lambda props: PackedFisheye(props))
+    _PACKED_REGISTERED.add(mi.variant())
+    return name
+
+
 def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts,
-                settings: RenderSettings, *, crop: tuple[int, int, int, int] | None = None):
+                settings: RenderSettings, *, crop: tuple[int, int, int, int] | None = None,
+                pixels: np.ndarray | None = None):
     """Assemble the Mitsuba scene for one frame.
 
     Parameters
@@ -237,6 +304,10 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
         What to render.
     crop : (row0, col0, height, width), optional
         Render only this window of the film.
+    pixels : (n,) int array, optional
+        Render only these flat pixel indices (``row * width + col``), packed
+        row-major into a film ``PACKED_WIDTH`` wide (see
+        :func:`register_packed_fisheye`).
 
     Notes
     -----
@@ -274,6 +345,14 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
 
     film = {"type": "hdrfilm", "width": camera.width, "height": camera.height,
             "pixel_format": "luminance", "rfilter": {"type": "box"}, "sample_border": False}
+    lens = {"type": register_fisheye(mi), "focal_px": camera.focal_px,
+            "camera_z": float(camera.z)}
+    if pixels is not None:
+        n = len(pixels)
+        film.update(width=min(n, PACKED_WIDTH), height=-(-n // PACKED_WIDTH))
+        lens = {"type": register_packed_fisheye(mi), "focal_px": camera.focal_px,
+                "camera_z": float(camera.z), "image_width": camera.width,
+                "image_height": camera.height}
     if crop is not None:
         r0, c0, h, w = crop
         film.update(crop_offset_x=int(c0), crop_offset_y=int(r0), crop_width=int(w),
@@ -282,9 +361,14 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
         "type": "scene",
         "integrator": {"type": "path", "max_depth": settings.max_depth,
                        "rr_depth": settings.max_depth},
-        "camera": {"type": register_fisheye(mi), "focal_px": camera.focal_px,
-                   "camera_z": float(camera.z), "film": film,
-                   "sampler": {"type": "independent", "sample_count": 1}},
+        "camera": {**lens, "film": film, "sampler": {"type": "independent", "sample_count": 1}},
         **objects,
     }
-    return mi.load_dict(scene)
+    loaded = mi.load_dict(scene)
+    if pixels is not None:
+        lens_obj = loaded.sensors()[0]
+        rows, cols = np.divmod(np.asarray(pixels, dtype=np.int64), camera.width)
+        lens_obj.rows = mi.Float(rows.astype(np.float32))
+        lens_obj.cols = mi.Float(cols.astype(np.float32))
+        lens_obj.n_pixels = len(rows)
+    return loaded

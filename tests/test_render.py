@@ -201,3 +201,74 @@ def test_errors_do_not_import_mitsuba_and_import_is_lazy():
 def test_render_settings_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         RenderSettings(**kwargs)
+
+
+# ---------------------------------------------------------------------------- only the spot pixels
+PIX_CAM = optitact.FisheyeCamera(width=160, height=120)
+PIX_LOAD = np.zeros((41, 3))
+PIX_LOAD[[0, 5, 20], 2] = (0.8, 0.5, 0.6)
+PIX_LOAD[0, 0] = 0.1
+
+
+@pytest.fixture(scope="module")
+def noload_bg():
+    return render(SENSOR, np.zeros((41, 3)), camera=PIX_CAM, spp=128, seed=7)
+
+
+def test_spot_pixels_are_the_loaded_regions():
+    from optitact.pipeline import Pipeline
+    from optitact.render import spot_pixels
+
+    mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
+    fold = Pipeline(SENSOR, PIX_CAM)._fold
+    want = np.zeros(PIX_CAM.shape, bool).reshape(-1)
+    want[fold.pixel[np.isin(fold.label, [0, 5, 20])]] = True
+    np.testing.assert_array_equal(mask.reshape(-1), want)
+    assert mask.sum() < 0.1 * mask.size
+    assert spot_pixels(SENSOR, PIX_CAM, PIX_LOAD, margin=2).sum() > mask.sum()
+    assert not spot_pixels(SENSOR, PIX_CAM, np.zeros((41, 3))).any()
+
+
+def test_pixel_rendering_matches_full_frames_within_noise(noload_bg):
+    """Readings of frames rendered only at the spot pixels (over a no-load background) agree with
+    full-frame renders in the mean over seeds, within 4 combined standard errors."""
+    from optitact.pipeline import Pipeline
+    from optitact.render import spot_pixels
+
+    mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
+    pipe = Pipeline(SENSOR, PIX_CAM, baseline=noload_bg, noise_sigma=0.0)
+    loaded = [0, 5, 20]
+    packed, full = [], []
+    for k in range(3):
+        img = render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=128, seed=10 + k, pixels=mask,
+                     background=noload_bg)
+        np.testing.assert_array_equal(img[~mask], noload_bg[~mask])  # no seams: untouched
+        packed.append(pipe.process(img).G[loaded])
+        full.append(pipe.process(render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=128,
+                                        seed=20 + k)).G[loaded])
+    packed, full = np.array(packed), np.array(full)
+    se = np.sqrt(packed.var(0, ddof=1) / 3 + full.var(0, ddof=1) / 3)
+    diff = np.abs(packed.mean(0) - full.mean(0))
+    assert np.all(diff < 4 * se + 0.02 * full.mean(0)), (packed.mean(0), full.mean(0), se)
+    assert np.all(packed.mean(0) > 0.05)
+
+
+def test_pixel_rendering_inputs(noload_bg):
+    from optitact.render import spot_pixels
+
+    mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
+    empty = render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=1, pixels=np.zeros(PIX_CAM.shape, bool),
+                   background=noload_bg)
+    np.testing.assert_array_equal(empty, noload_bg)
+    bare = render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=4, pixels=mask)
+    assert np.all(bare[~mask] == 0) and bare[mask].max() > 0
+    for kw, exc, match in [
+        (dict(pixels=mask, crop=(0, 0, 10, 10)), ValueError, "crop or pixels"),
+        (dict(pixels=mask.astype(int)), TypeError, "bool mask"),
+        (dict(pixels=mask[:, :-1]), ValueError, "camera's shape"),
+        (dict(background=noload_bg), ValueError, "only used with pixels"),
+        (dict(pixels=mask, background=noload_bg[:-1]), ValueError, "background must have"),
+        (dict(pixels=mask, background=np.full(PIX_CAM.shape, np.nan)), ValueError, "finite"),
+    ]:
+        with pytest.raises(exc, match=match):
+            render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=1, **kw)
