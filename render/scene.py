@@ -179,11 +179,19 @@ def _mi_mesh(mi, name: str, data, props) -> object:
 
 
 _SENSOR_REGISTERED: set = set()
-_PACKED_REGISTERED: set = set()
 
 
 def register_fisheye(mi) -> str:
-    """Register the equidistant fisheye sensor plugin for the active variant."""
+    """Register the equidistant fisheye sensor plugins for the active variant; return the full-frame one.
+
+    ``optitact_fisheye`` renders the film (or its crop window);
+    ``optitact_fisheye_packed`` renders a list of image pixels packed into a
+    small film: film pixel ``k`` (row-major) is image pixel ``(rows[k],
+    cols[k])``, a sample keeps its sub-pixel position (so each listed pixel
+    is integrated exactly as in a full frame), and film pixels past the list
+    look away from the dome (they read 0). :func:`build_scene` sets the
+    tables on the loaded sensor.
+    """
     name = "optitact_fisheye"
     if mi.variant() in _SENSOR_REGISTERED:
         return name
@@ -197,18 +205,24 @@ def register_fisheye(mi) -> str:
             self.focal = float(props.get("focal_px"))
             self.cz = float(props.get("camera_z"))
 
-        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
-                       active=True):
+        def image_position(self, position_sample):
+            """Image film position (x = col + 0.5 at a pixel centre), image size, and validity."""
             film = self.film()
-            size = mi.ScalarVector2f(film.size())
             p = (mi.ScalarVector2f(film.crop_offset())
                  + position_sample * mi.ScalarVector2f(film.crop_size()))
-            dx = p.x - 0.5 * size.x  # film x = col + 0.5; principal point at the centre
-            dy = p.y - 0.5 * size.y
+            return p.x, p.y, mi.ScalarVector2f(film.size()), None
+
+        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
+                       active=True):
+            x, y, size, listed = self.image_position(position_sample)
+            dx = x - 0.5 * size.x  # principal point at the image centre
+            dy = y - 0.5 * size.y
             r = dr.sqrt(dx * dx + dy * dy)
             alpha = r / self.focal
             s = dr.select(r > 1e-12, dr.sin(alpha) / r, 0.0)
             d = mi.Vector3f(dx * s, dy * s, dr.cos(alpha))
+            if listed is not None:
+                d = dr.select(listed, d, mi.Vector3f(0.0, 0.0, -1.0))
             ray = mi.Ray3f(mi.Point3f(0.0, 0.0, self.cz), d, time, [])
             return ray, mi.Spectrum(1.0)
 
@@ -221,74 +235,41 @@ def register_fisheye(mi) -> str:
         def to_string(self):
             return f"Fisheye[focal_px={self.focal}, z={self.cz}]"
 
-    mi.register_sensor(name, lambda props: Fisheye(props))
-    _SENSOR_REGISTERED.add(mi.variant())
-    return name
-
-
-#: Width of the packed film that holds a pixel list (see :func:`build_scene`).
-PACKED_WIDTH = 256
-
-
-def register_packed_fisheye(mi) -> str:
-    """Register the fisheye that renders a list of image pixels packed into a small film.
-
-    Film pixel ``k`` (row-major) is image pixel ``(rows[k], cols[k])``; a
-    sample keeps its sub-pixel position, so each listed pixel is integrated
-    exactly as in a full frame. Film pixels past the list look away from the
-    dome (they read 0). The tables are set on the loaded sensor by
-    :func:`build_scene`.
-    """
-    name = "optitact_fisheye_packed"
-    if mi.variant() in _PACKED_REGISTERED:
-        return name
-    import drjit as dr
-
-    class PackedFisheye(mi.Sensor):
-        """Equidistant fisheye rendering only listed pixels; same model as :class:`FisheyeCamera`."""
+    class PackedFisheye(Fisheye):
+        """The fisheye rendering only listed image pixels, packed into a small film."""
 
         def __init__(self, props):
             super().__init__(props)
-            self.focal = float(props.get("focal_px"))
-            self.cz = float(props.get("camera_z"))
-            self.image_w = float(props.get("image_width"))
-            self.image_h = float(props.get("image_height"))
+            self.image_size = mi.ScalarVector2f(float(props.get("image_width")),
+                                                float(props.get("image_height")))
             self.n_pixels = 0
             self.rows = mi.Float(0.0)
             self.cols = mi.Float(0.0)
 
-        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
-                       active=True):
+        def image_position(self, position_sample):
             film = self.film()
             p = position_sample * mi.ScalarVector2f(film.size())
             fx, fy = dr.floor(p.x), dr.floor(p.y)
             k = mi.UInt32(fy) * mi.UInt32(int(film.size()[0])) + mi.UInt32(fx)
             listed = k < self.n_pixels
             k = dr.select(listed, k, 0)
-            x = dr.gather(mi.Float, self.cols, k) + (p.x - fx)  # film x = col + 0.5 at the centre
+            x = dr.gather(mi.Float, self.cols, k) + (p.x - fx)
             y = dr.gather(mi.Float, self.rows, k) + (p.y - fy)
-            dx = x - 0.5 * self.image_w
-            dy = y - 0.5 * self.image_h
-            r = dr.sqrt(dx * dx + dy * dy)
-            alpha = r / self.focal
-            s = dr.select(r > 1e-12, dr.sin(alpha) / r, 0.0)
-            d = mi.Vector3f(dx * s, dy * s, dr.cos(alpha))
-            d = dr.select(listed, d, mi.Vector3f(0.0, 0.0, -1.0))
-            ray = mi.Ray3f(mi.Point3f(0.0, 0.0, self.cz), d, time, [])
-            return ray, mi.Spectrum(1.0)
-
-        def sample_ray_differential(self, time, wavelength_sample, position_sample,
-                                    aperture_sample, active=True):
-            ray, weight = self.sample_ray(time, wavelength_sample, position_sample,
-                                          aperture_sample, active)
-            return mi.RayDifferential3f(ray), weight
+            return x, y, self.image_size, listed
 
         def to_string(self):
             return f"PackedFisheye[focal_px={self.focal}, z={self.cz}, pixels={self.n_pixels}]"
 
-    mi.register_sensor(name, lambda props: PackedFisheye(props))
-    _PACKED_REGISTERED.add(mi.variant())
+    mi.register_sensor(name, lambda props: Fisheye(props))
+    mi.register_sensor(PACKED_SENSOR, lambda props: PackedFisheye(props))
+    _SENSOR_REGISTERED.add(mi.variant())
     return name
+
+
+#: Width of the packed film that holds a pixel list (see :func:`build_scene`).
+PACKED_WIDTH = 256
+#: Name of the packed-pixel fisheye plugin (see :func:`register_fisheye`).
+PACKED_SENSOR = "optitact_fisheye_packed"
 
 
 def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts,
@@ -307,7 +288,7 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
     pixels : (n,) int array, optional
         Render only these flat pixel indices (``row * width + col``), packed
         row-major into a film ``PACKED_WIDTH`` wide (see
-        :func:`register_packed_fisheye`).
+        :func:`register_fisheye`).
 
     Notes
     -----
@@ -350,7 +331,8 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
     if pixels is not None:
         n = len(pixels)
         film.update(width=min(n, PACKED_WIDTH), height=-(-n // PACKED_WIDTH))
-        lens = {"type": register_packed_fisheye(mi), "focal_px": camera.focal_px,
+        register_fisheye(mi)
+        lens = {"type": PACKED_SENSOR, "focal_px": camera.focal_px,
                 "camera_z": float(camera.z), "image_width": camera.width,
                 "image_height": camera.height}
     if crop is not None:
