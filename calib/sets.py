@@ -131,12 +131,12 @@ def _frame_dtype(ccd: CCD) -> str:
 
 
 def _set_attrs(*, sensor, camera, ccd, design, spp, seed, n_frames, keep_frames, settings,
-               pipeline_options, baseline_frames) -> dict:
+               pipeline_options, baseline_frames, render_mode) -> dict:
     from optitact import __version__
 
     return {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "library_version": __version__,
             "frames": n_frames, "seed": seed, "spp": spp, "keep_frames": keep_frames,
-            "baseline_frames": baseline_frames,
+            "baseline_frames": baseline_frames, "render_mode": render_mode,
             "sensor": sensor.to_dict(), "camera": camera.to_dict(), "ccd": ccd.to_dict(),
             "design": design.to_dict(), "render_settings": settings,
             "pipeline": pipeline_options}
@@ -192,8 +192,8 @@ class CalibrationSet:
         """A whole array of the set.
 
         Names: ``forces``, ``seeds``, ``G``, ``u``, ``contact``, ``saturated``,
-        ``done``, ``baseline`` (the no-load frames) and (with ``keep_frames``)
-        ``frames``.
+        ``done``, ``baseline`` (the no-load frames), ``baseline_radiance``
+        (their renders) and (with ``keep_frames``) ``frames``.
         """
         if name not in self._group:
             raise KeyError(f"{self.path} has no array {name!r}")
@@ -214,7 +214,8 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
              camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 64,
              seed: int = 0, design: Design | None = None, keep_frames: bool = False,
              variant: str | None = None, pipeline_options: dict | None = None,
-             baseline_frames: int = 4, progress: bool = True) -> CalibrationSet:
+             baseline_frames: int = 4, render_mode: str = "pixels",
+             progress: bool = True) -> CalibrationSet:
     """Create or finish a synthetic calibration set (resumable).
 
     Parameters
@@ -242,6 +243,12 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         No-load frames rendered for the baseline (default 4): their mean is
         subtracted and their per-pixel noise sets the threshold (the faint
         guided light of the background carries Monte Carlo noise of its own).
+    render_mode : {"pixels", "full"}
+        ``"pixels"`` (default) renders only the pixels the pipeline reads for
+        the loaded elements (:func:`optitact.render.spot_pixels`), composited
+        over the mean no-load radiance; ``"full"`` renders whole frames. The
+        readings are the same up to Monte Carlo noise; pixels is about 2x
+        faster with all 41 elements loaded at 640 x 480.
     progress : bool
         Show a progress bar (frames/s, ETA) on stderr.
 
@@ -258,11 +265,13 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     from tqdm import tqdm
 
     from optitact.pipeline import Pipeline
-    from optitact.render import RenderSettings, render
+    from optitact.render import RenderSettings, render, spot_pixels
 
     frames = integer(frames, "frames", minimum=1)
     spp = integer(spp, "spp", minimum=1)
     baseline_frames = integer(baseline_frames, "baseline_frames", minimum=1)
+    if render_mode not in ("pixels", "full"):
+        raise InputError(f"render_mode must be 'pixels' or 'full', got {render_mode!r}")
     seed = seed_value(seed)
     if seed is None:
         raise InputError("a calibration set needs an integer seed (it is how frames resume)")
@@ -277,7 +286,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     attrs = _set_attrs(sensor=sensor, camera=camera, ccd=ccd, design=design, spp=spp, seed=seed,
                        n_frames=frames, keep_frames=bool(keep_frames),
                        settings=asdict(RenderSettings()), pipeline_options=options,
-                       baseline_frames=baseline_frames)
+                       baseline_frames=baseline_frames, render_mode=render_mode)
     path = Path(path)
     n_el, (h, w) = sensor.n_elements, camera.shape
     if path.exists() and (path / "zarr.json").is_file():
@@ -315,6 +324,8 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
                                chunks=(1, h, w), fill_value=0)
         group.create_array("baseline", shape=(baseline_frames, h, w), dtype=_frame_dtype(ccd),
                            chunks=(1, h, w), fill_value=0)
+        group.create_array("baseline_radiance", shape=(baseline_frames, h, w), dtype="f4",
+                           chunks=(1, h, w), fill_value=0.0)
         group.create_array("baseline_done", shape=(baseline_frames,), dtype="bool", chunks=(1,),
                            fill_value=False)
         group.create_array("done", shape=(frames,), dtype="bool", chunks=(1,), fill_value=False)
@@ -323,9 +334,11 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     for k in np.flatnonzero(~np.asarray(group["baseline_done"][:], dtype=bool)):
         empty = render(sensor, np.zeros((n_el, 3)), camera=camera, spp=spp, seed=int(bseeds[k]),
                        variant=variant)
+        group["baseline_radiance"][k] = empty
         group["baseline"][k] = ccd.expose(empty, seed=int(bseeds[k]))
         group["baseline_done"][k] = True
     baseline = np.asarray(group["baseline"][:])
+    background = np.asarray(group["baseline_radiance"][:], dtype=np.float64).mean(axis=0)
     pipe = Pipeline(sensor, camera, baseline=baseline, **options)
     done = np.asarray(group["done"][:], dtype=bool)
     seeds = np.asarray(group["seeds"][:])
@@ -335,7 +348,11 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         for i in todo:
             f = np.asarray(group["forces"][i])
             s = int(seeds[i])
-            radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant)
+            if render_mode == "pixels":
+                radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant,
+                                  pixels=spot_pixels(sensor, camera, f), background=background)
+            else:
+                radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant)
             frame = ccd.expose(radiance, seed=s)
             r = pipe.process(frame)
             group["G"][i] = r.G

@@ -163,6 +163,9 @@ def _parser() -> argparse.ArgumentParser:
     gen.add_argument("--mu-max", type=float, default=0.35,
                      help="largest shear/normal ratio (default 0.35; the feeler tips at ~0.37)")
     gen.add_argument("--keep-frames", action="store_true", help="also store the frames")
+    gen.add_argument("--render-mode", choices=("pixels", "full"), default="pixels",
+                     help="render only the pixels the pipeline reads, over the no-load render "
+                          "(default, ~2x faster) or whole frames")
     gen.add_argument("--width", type=_positive_int, default=640, help="image width (default 640)")
     gen.add_argument("--height", type=_positive_int, default=480,
                      help="image height (default 480)")
@@ -524,7 +527,7 @@ def _calibrate(args) -> int:
         cs = generate(args.out, frames=args.frames, camera=FisheyeCamera(width=args.width,
                                                                         height=args.height),
                       spp=args.spp, seed=args.seed, design=design, keep_frames=args.keep_frames,
-                      variant=args.variant)
+                      variant=args.variant, render_mode=args.render_mode)
         print(f"optitact: calibration set {args.out}: {int(cs.done.sum())} of {len(cs)} frames "
               f"done", file=sys.stderr)
         print(args.out)

@@ -248,6 +248,12 @@ def test_generate_stores_everything_and_resumes_identically(tmp_path):
     np.testing.assert_array_equal(again.readings().G, a.readings().G)
     with pytest.raises(InputError, match="other settings .*spp"):
         generate(tmp_path / "a.zarr", frames=3, keep_frames=True, **(GEN | {"spp": 3}))
+    assert a.attrs["render_mode"] == "pixels"
+    full = generate(tmp_path / "f.zarr", frames=3, render_mode="full", **GEN)
+    assert full.attrs["render_mode"] == "full" and full.complete
+    assert np.array_equal(full.forces(), a.forces())
+    with pytest.raises(InputError, match="render_mode"):
+        generate(tmp_path / "g.zarr", frames=3, render_mode="windows", **GEN)
 
 
 def test_generate_survives_being_killed(tmp_path):
