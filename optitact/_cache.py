@@ -28,11 +28,14 @@ def cache_dir() -> Path:
     return root
 
 
-def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str | None = None) -> np.ndarray:
+def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str | None = None,
+                  spot_pixels_only: bool = False) -> np.ndarray:
     """:func:`optitact.render.render` through the cache, keyed by every input that changes the image.
 
     The key holds the sensor, camera, forces (exact float64 bytes), spp, seed,
-    render settings, the variant and the package version. Written atomically
+    render settings, the variant, the mode and the package version. With
+    ``spot_pixels_only`` only :func:`optitact.render.spot_pixels` are rendered
+    (the rest of the image is 0). Written atomically
     (temporary file, then rename), so a killed run leaves no half file.
     """
     from . import __version__
@@ -42,13 +45,20 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
     f = np.ascontiguousarray(forces, dtype=np.float64)
     key = json.dumps({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "spp": spp,
                       "seed": seed, "settings": asdict(RenderSettings()), "variant": used,
-                      "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest()},
+                      "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest(),
+                      "spot_pixels_only": bool(spot_pixels_only)},
                      sort_keys=True)
     name = hashlib.sha256(key.encode()).hexdigest()[:24]
     path = cache_dir() / "renders" / f"{name}.npy"
     if path.is_file():
         return np.load(path)
-    img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used)
+    if spot_pixels_only:
+        from .render import spot_pixels
+
+        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used,
+                     pixels=spot_pixels(sensor, camera, f))
+    else:
+        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
     with tmp.open("wb") as fh:

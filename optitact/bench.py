@@ -12,78 +12,211 @@ import time
 import numpy as np
 
 from ._validate import integer
+from .errors import InputError
 from .camera import FisheyeCamera
-from .loads import indenter_load
 from .sensor import DomeSensor
 
 __all__ = ["bench_render", "bench_pipeline", "bench_accuracy"]
 
 
-def bench_render(spps=(16, 64, 256), *, repeats: int = 3, width: int = 640, height: int = 480,
-                 variant: str | None = None, seed: int = 0) -> dict:
-    """Time full-frame renders of the demo load and measure their Monte Carlo noise.
+def render_cases(sensor: DomeSensor, seed: int = 11) -> dict[str, np.ndarray]:
+    """The fixed load cases of the render benchmark: 1, 5 and 41 loaded elements, light and heavy."""
+    from .loads import random_load
+
+    five = [0, 1, 3, 9, 25]
+    cases = {}
+    for name, fz, shear in (("1-light", 0.3, 0.05), ("1-heavy", 0.9, 0.2)):
+        f = np.zeros((sensor.n_elements, 3))
+        f[0] = (shear, 0.0, fz)
+        cases[name] = f
+    for name, fz, shear in (("5-light", 0.3, 0.05), ("5-heavy", 0.9, 0.2)):
+        f = np.zeros((sensor.n_elements, 3))
+        f[five, 2] = fz
+        f[five, 0] = shear
+        cases[name] = f
+    cases["41"] = random_load(sensor, seed=seed)
+    return cases
+
+
+def _render_readings(images: dict, sensor, camera, noload, ccd, cal):
+    """Readings (and forces) of noise-free camera frames made from radiance images."""
+    from .pipeline import Pipeline
+
+    options = dict(cal.pipeline_options) if cal is not None else {}
+    pipe = Pipeline(sensor, camera, baseline=ccd.mean_dn(noload), **options)
+    out = {}
+    for key, img in images.items():
+        r = pipe.process(ccd.mean_dn(img))
+        out[key] = (r, None if cal is None else cal.forces(r)[0])
+    return out
+
+
+def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp: int = 1024,
+                 width: int = 640, height: int = 480, repeats: int = 1, cases=None,
+                 target_pct_fs: float = 0.5, variant: str | None = None, seed: int = 0,
+                 plot=None) -> dict:
+    """Render time against the error it leaves, per mode and spp, on fixed load cases.
 
     Parameters
     ----------
     spps : sequence of int
-        Samples per pixel to measure.
-    repeats : int
-        Renders per spp (>= 2), each with its own seed; times are reported as
-        median and all runs.
+        Samples per pixel to measure for every mode.
+    modes : sequence of {"brute", "pixels"}
+        ``"brute"``: full frames; ``"pixels"``: only the spot pixels of the
+        loaded elements (:func:`optitact.render.spot_pixels`).
+    reference_spp : int
+        Samples per pixel of the converged reference of each case (spot
+        pixels only, which is the same estimator per pixel; cached on disk).
     width, height : int
-        Image size.
+    repeats : int
+        Renders per row; times are medians, errors are RMS over repeats.
+    cases : sequence of str, optional
+        Names from :func:`render_cases` (default all).
+    target_pct_fs : float
+        Force error (% of full scale) at which ``speedup_at_equal_error`` and
+        ``calibration_frame_s`` are stated.
     variant : str, optional
-        Mitsuba variant (default: the fastest that works).
     seed : int
-        Base seed; repeat ``k`` uses ``seed + k``.
+    plot : path-like, optional
+        Error against time (log-log), one curve per mode, for the 41-element
+        case (or the last case).
 
     Returns
     -------
     dict
-        ``variant``, ``size`` and per spp: ``median_s``, ``runs_s``,
-        ``spot_pixel_rel_noise`` (RMS per-pixel difference between repeats,
-        divided by sqrt(2) and by the mean radiance, over pixels that belong to
-        spots) and ``spot_sum_rel_spread`` (relative standard deviation of the
-        total spot radiance over repeats: the noise of an integrated grey value).
+        ``rows`` (case, mode, spp, seconds, G relative error, u error (mm),
+        force error (% FS) through the shipped calibration where it applies
+        to this camera), ``pareto`` per case, and ``headline``:
+        ``speedup_at_equal_error`` (brute seconds / best mode seconds at
+        ``target_pct_fs``, both extrapolated with error ~ 1/sqrt(spp) and
+        time ~ spp from their largest-spp rows) and ``calibration_frame_s``
+        (the best mode's seconds for the 41-element frame at that error).
 
     Notes
     -----
-    A warm-up render (1 spp) compiles the kernels and selects the variant
-    first, so the times are those of a warm process. Spot pixels are those
-    where the mean over repeats exceeds 10 % of its 99.9th percentile.
+    Errors are those of the render alone: radiance is turned into
+    noise-free DN (:meth:`CCD.mean_dn`), read with a pipeline whose
+    baseline is a 256-spp no-load render, and compared with the
+    reference's readings on the loaded elements.
     """
     from tqdm import tqdm
 
-    from .render import active_variant, render
+    from ._cache import cached_render
+    from .calib import default_calibration
+    from .ccd import CCD
+    from .render import active_variant, render, spot_pixels
 
-    repeats = integer(repeats, "repeats", minimum=2)
-    spps = tuple(integer(spp, "spps[]", minimum=1) for spp in spps)
+    spps = tuple(integer(v, "spps[]", minimum=1) for v in spps)
+    repeats = integer(repeats, "repeats", minimum=1)
+    reference_spp = integer(reference_spp, "reference_spp", minimum=1)
+    for m in modes:
+        if m not in ("brute", "pixels"):
+            raise InputError(f"modes must be 'brute' or 'pixels', got {m!r}")
     sensor = DomeSensor.default()
-    camera = FisheyeCamera(width=width, height=height)
-    forces = indenter_load(sensor)
-    render(sensor, forces, camera=camera, spp=1, seed=seed, variant=variant)
-    result = {"variant": active_variant()["variant"], "size": f"{width}x{height}",
-              "load": "indenter_load (demo)", "repeats": repeats, "spp": {}}
-    jobs = [(spp, k) for spp in spps for k in range(repeats)]
-    images: dict[int, list] = {spp: [] for spp in spps}
-    times: dict[int, list] = {spp: [] for spp in spps}
-    for spp, k in tqdm(jobs, desc="bench render", unit="frame", file=sys.stderr):
-        t0 = time.perf_counter()
-        img = render(sensor, forces, camera=camera, spp=spp, seed=seed + k, variant=variant)
-        times[spp].append(time.perf_counter() - t0)
-        images[spp].append(img.astype(np.float64))
-    for spp in spps:
-        stack = np.stack(images[spp])
-        mean = stack.mean(axis=0)
-        spot = mean > 0.1 * np.percentile(mean, 99.9)
-        diff = (stack[0] - stack[1])[spot] / np.sqrt(2.0)
-        sums = stack[:, spot].sum(axis=1)
-        result["spp"][str(spp)] = {
-            "median_s": round(float(np.median(times[spp])), 3),
-            "runs_s": [round(t, 3) for t in times[spp]],
-            "spot_pixel_rel_noise": round(float(np.sqrt(np.mean(diff**2)) / mean[spot].mean()), 4),
-            "spot_sum_rel_spread": round(float(sums.std(ddof=1) / sums.mean()), 5),
-        }
+    camera = FisheyeCamera(width=integer(width, "width", minimum=2),
+                           height=integer(height, "height", minimum=2))
+    all_cases = render_cases(sensor)
+    names = list(all_cases) if cases is None else list(cases)
+    for n in names:
+        if n not in all_cases:
+            raise InputError(f"unknown case {n!r}; valid: {sorted(all_cases)}")
+    ccd = CCD()
+    cal = default_calibration()
+    if cal.camera != camera:
+        cal = None
+    render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera, spp=1, variant=variant)
+    noload = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera, spp=256,
+                           seed=seed + 7, variant=variant)
+    fs = np.array([0.5, 0.5, 1.0])
+    rows = []
+    jobs = [(c, m, spp, k) for c in names for m in modes for spp in spps for k in range(repeats)]
+    bar = tqdm(total=len(jobs) + len(names), desc="bench render", unit="render", file=sys.stderr)
+    for case in names:
+        f = all_cases[case]
+        loaded = f[:, 2] > 0
+        mask = spot_pixels(sensor, camera, f)
+        ref = cached_render(sensor, f, camera=camera, spp=reference_spp, seed=seed + 5,
+                            variant=variant, spot_pixels_only=True)
+        ref = np.where(mask, ref, noload)
+        bar.update(1)
+        for mode in modes:
+            for spp in spps:
+                times, images = [], {}
+                for k in range(repeats):
+                    kw = {} if mode == "brute" else dict(pixels=mask, background=noload)
+                    t0 = time.perf_counter()
+                    images[k] = render(sensor, f, camera=camera, spp=spp, seed=seed + 100 + k,
+                                       variant=variant, **kw)
+                    times.append(time.perf_counter() - t0)
+                    bar.update(1)
+                images["ref"] = ref
+                read = _render_readings(images, sensor, camera, noload, ccd, cal)
+                r_ref, f_ref = read.pop("ref")
+                seen = loaded & r_ref.contact  # loaded elements the reference sees
+                g_err, u_err, f_err = [], [], []
+                for r, est in read.values():
+                    g_err.append((r.G[seen] - r_ref.G[seen]) / r_ref.G[seen])
+                    u_err.append(np.linalg.norm(r.u[seen] - r_ref.u[seen], axis=-1))
+                    if est is not None:
+                        f_err.append((est[loaded] - f_ref[loaded]) / fs)
+                if not seen.any():
+                    raise InputError(f"case {case}: the reference shows no loaded element at "
+                                     f"{camera.width}x{camera.height}; use a larger image")
+                row = {"case": case, "mode": mode, "spp": spp,
+                       "seconds": round(float(np.median(times)), 4),
+                       "g_rel_error": round(float(np.sqrt(np.mean(np.square(g_err)))), 5),
+                       "u_error_mm": round(float(np.sqrt(np.mean(np.square(u_err)))), 5)}
+                if f_err:
+                    per_axis = np.sqrt(np.mean(np.square(f_err), axis=(0, 1)))
+                    row["force_error_pct_fs"] = round(float(100 * per_axis.max()), 4)
+                rows.append(row)
+    bar.close()
+    err_key = "force_error_pct_fs" if cal is not None else "g_rel_error"
+    target = target_pct_fs if cal is not None else target_pct_fs / 100
+    pareto = {}
+    for case in names:
+        best = np.inf
+        front = []
+        for row in sorted((r for r in rows if r["case"] == case), key=lambda r: r["seconds"]):
+            if row[err_key] < best:
+                best = row[err_key]
+                front.append(f"{row['mode']}@{row['spp']}")
+        pareto[case] = front
+
+    def time_at_target(case, mode):
+        top = max((r for r in rows if r["case"] == case and r["mode"] == mode),
+                  key=lambda r: r["spp"])
+        spp_needed = top["spp"] * (top[err_key] / target) ** 2
+        return top["seconds"] / top["spp"] * spp_needed
+
+    head_case = "41" if "41" in names else names[-1]
+    t_modes = {m: time_at_target(head_case, m) for m in modes}
+    best_mode = min(t_modes, key=t_modes.get)
+    headline = {"case": head_case, "error_measure": err_key, "target": target,
+                "seconds_at_target": {m: round(t, 3) for m, t in t_modes.items()},
+                "best_mode": best_mode,
+                "calibration_frame_s": round(t_modes[best_mode], 3)}
+    if "brute" in t_modes:
+        headline["speedup_at_equal_error"] = round(t_modes["brute"] / t_modes[best_mode], 2)
+    result = {"variant": active_variant()["variant"], "size": f"{camera.width}x{camera.height}",
+              "reference_spp": reference_spp, "repeats": repeats, "rows": rows,
+              "pareto": pareto, "headline": headline,
+              "calibration": "shipped (default)" if cal is not None else None}
+    if plot is not None:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(6, 4.5), layout="constrained")
+        ax = fig.subplots()
+        for mode in modes:
+            pts = sorted((r["seconds"], r[err_key]) for r in rows
+                         if r["case"] == head_case and r["mode"] == mode)
+            ax.loglog(*zip(*pts, strict=True), "o-", label=mode)
+        ax.axhline(target, color="k", lw=0.8, ls="--", label="target")
+        ax.set(xlabel="seconds per frame", ylabel=err_key.replace("_", " "),
+               title=f"render time vs error, case {head_case}, {camera.width}x{camera.height}")
+        ax.legend()
+        fig.savefig(plot, dpi=100)
+        result["plot"] = str(plot)
     return result
 
 

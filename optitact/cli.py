@@ -189,17 +189,32 @@ def _parser() -> argparse.ArgumentParser:
                     "medians over repeats in one run. Output: one JSON object on stdout.")
     bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
     brender = bsub.add_parser(
-        "render", help="full-frame render time and Monte Carlo noise per spp",
-        description="Render the demo load at several spp, each several times with its own "
-                    "seed; report median time and the noise of spot pixels and of the summed "
-                    "spot radiance.")
+        "render", help="render time against the error it leaves, per mode and spp",
+        description="For fixed load cases (1, 5 and 41 loaded elements, light and heavy), render "
+                    "with each mode (brute: full frames; pixels: only the pixels the pipeline "
+                    "reads for the loaded elements, over a no-load render) at several spp, and "
+                    "compare the readings with a converged reference (cached on disk after the "
+                    "first run): G relative error, u error (mm) and the force error through the "
+                    "shipped calibration (% FS). Prints the rows, the Pareto front per case, and "
+                    "the speed-up at equal error and the seconds of a 41-element frame at the "
+                    "target error.")
     brender.add_argument("--spp", type=_positive_int, nargs="+", default=[16, 64, 256],
                          help="samples per pixel to measure (default 16 64 256)")
-    brender.add_argument("--repeats", type=_int_at_least(2, "an integer >= 2"), default=3,
-                         help="renders per spp (default 3)")
+    brender.add_argument("--modes", nargs="+", choices=("brute", "pixels"),
+                         default=["brute", "pixels"], help="render modes (default both)")
+    brender.add_argument("--reference-spp", type=_positive_int, default=1024,
+                         help="samples per pixel of the converged references (default 1024)")
+    brender.add_argument("--cases", nargs="+", default=None,
+                         help="load cases (default all: 1-light 1-heavy 5-light 5-heavy 41)")
+    brender.add_argument("--repeats", type=_positive_int, default=1,
+                         help="renders per row; medians and RMS over them (default 1)")
+    brender.add_argument("--target", type=float, default=0.5,
+                         help="force error (%% FS) for the headline figures (default 0.5)")
     brender.add_argument("--width", type=_positive_int, default=640)
     brender.add_argument("--height", type=_positive_int, default=480)
     brender.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
+    brender.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
+                         help="save error against time (log-log) per mode")
     brender.add_argument("--json", action="store_true",
                          help="print only the JSON object (the default output is JSON too)")
     bpipe = bsub.add_parser(
@@ -567,8 +582,10 @@ def _bench(args) -> int:
                                 repeats=args.repeats, spp=args.spp, seed=args.seed,
                                 variant=args.variant)
     else:
-        result = bench_render(tuple(args.spp), repeats=args.repeats, width=args.width,
-                              height=args.height, variant=args.variant)
+        result = bench_render(tuple(args.spp), modes=tuple(args.modes),
+                              reference_spp=args.reference_spp, width=args.width,
+                              height=args.height, repeats=args.repeats, cases=args.cases,
+                              target_pct_fs=args.target, variant=args.variant, plot=args.plot)
     print(json.dumps(result))
     return 0
 

@@ -145,17 +145,26 @@ def test_indenter_load_is_centred_and_friction_limited():
     np.testing.assert_allclose(t, 0.3 * f[:, 2], rtol=0, atol=1e-12)
 
 
-def test_bench_render_json(capsys):
-    assert main(["bench", "render", "--spp", "1", "2", "--repeats", "2", "--width", "48",
-                 "--height", "36", "--json"]) == 0
+def test_bench_render_json(capsys, tmp_path):
+    plot = tmp_path / "pareto.png"
+    assert main(["bench", "render", "--spp", "1", "4", "--reference-spp", "8", "--width", "64",
+                 "--height", "48", "--cases", "1-heavy", "41", "--plot", str(plot), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["size"] == "48x36" and set(out["spp"]) == {"1", "2"}
-    for row in out["spp"].values():
-        assert len(row["runs_s"]) == 2 and row["median_s"] > 0
-        assert 0 < row["spot_pixel_rel_noise"] < 10 and row["spot_sum_rel_spread"] >= 0
+    assert out["size"] == "64x48" and out["reference_spp"] == 8
+    assert len(out["rows"]) == 2 * 2 * 2  # cases x modes x spp
+    for row in out["rows"]:
+        assert row["seconds"] > 0 and row["g_rel_error"] >= 0 and row["u_error_mm"] >= 0
+        assert "force_error_pct_fs" not in row  # the shipped calibration is for 640x480
+    for case in ("1-heavy", "41"):
+        errs = {r["spp"]: r["g_rel_error"] for r in out["rows"]
+                if r["case"] == case and r["mode"] == "pixels"}
+        assert errs[4] < errs[1]  # more samples, less error against the reference
+        assert out["pareto"][case]
+    head = out["headline"]
+    assert head["case"] == "41" and head["speedup_at_equal_error"] > 0
+    assert head["calibration_frame_s"] > 0 and cv2.imread(str(plot)) is not None
 
 
-def test_bench_needs_two_repeats(capsys):
-    with pytest.raises(SystemExit) as e:
-        main(["bench", "render", "--repeats", "1"])
-    assert e.value.code == 2
+def test_bench_render_bad_case(capsys):
+    assert main(["bench", "render", "--cases", "7-medium", "--width", "48", "--height", "36"]) == 2
+    assert "unknown case" in capsys.readouterr().err
