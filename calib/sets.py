@@ -171,6 +171,11 @@ class CalibrationSet:
         if self.attrs.get("schema_version") != SCHEMA_VERSION:
             raise InputError(f"{self.path}: calibration-set schema version "
                              f"{self.attrs.get('schema_version')!r}; this optitact reads {SCHEMA_VERSION}")
+        missing = [k for k in ("frames", "seed", "spp", "sensor", "camera", "ccd", "design")
+                   if k not in self.attrs]
+        if missing:
+            raise InputError(f"{self.path} is an incomplete calibration set (missing "
+                             f"{', '.join(missing)}); run its generate command again")
         self.sensor = DomeSensor.from_dict(self.attrs["sensor"])
         self.camera = FisheyeCamera.from_dict(self.attrs["camera"])
         self.ccd = CCD.from_dict(self.attrs["ccd"])
@@ -329,7 +334,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         group.create_array("baseline_done", shape=(baseline_frames,), dtype="bool", chunks=(1,),
                            fill_value=False)
         group.create_array("done", shape=(frames,), dtype="bool", chunks=(1,), fill_value=False)
-        group.attrs.update(attrs)  # last: a store with attributes has all its arrays
+        group.attrs.put(attrs)  # last, in one write: a store with attributes has all its arrays
     bseeds = np.random.SeedSequence([seed, 3]).generate_state(baseline_frames)
     for k in np.flatnonzero(~np.asarray(group["baseline_done"][:], dtype=bool)):
         empty = render(sensor, np.zeros((n_el, 3)), camera=camera, spp=spp, seed=int(bseeds[k]),

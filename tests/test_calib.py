@@ -263,13 +263,18 @@ def test_generate_survives_being_killed(tmp_path):
     killed = tmp_path / "killed.zarr"
     proc = subprocess.Popen([sys.executable, "-c", code.format(path=str(killed))],
                             start_new_session=True)
-    deadline = time.time() + 120
-    while time.time() < deadline:
-        if (killed / "done").exists() and CalibrationSet(killed).done.sum() >= 2:
-            break
-        time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline:
+            try:
+                if CalibrationSet(killed).done.sum() >= 2:
+                    break
+            except (FileNotFoundError, InputError, KeyError):
+                pass  # the store is still being created
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
     partial = CalibrationSet(killed).done
     assert 0 < partial.sum() < 10, "the kill must land mid-run for this test to mean anything"
     resumed = generate(killed, frames=10, **GEN)
