@@ -79,6 +79,20 @@ def _plain(options: dict) -> dict:
     return {k: v for k, v in sorted(options.items()) if v is not None and k != "baseline"}
 
 
+def _resolved(sensor: DomeSensor, camera: FisheyeCamera, options: dict) -> dict:
+    """Pipeline options with the region geometry made explicit.
+
+    The default region radius and dewarp cell size are derived from the
+    sensor and camera; storing the values used keeps a calibration valid
+    even if a later version derives other defaults.
+    """
+    from optitact.pipeline import Pipeline
+
+    plain = _plain(options)
+    pipe = Pipeline(sensor, camera, **plain)
+    return plain | {"radius": pipe.grids.radius, "grid_mm": pipe.grids.grid_mm}
+
+
 def _g_design(s: np.ndarray) -> np.ndarray:
     return np.stack([np.ones_like(s), s, s**2, s**3], axis=-1)
 
@@ -235,7 +249,8 @@ class Calibration:
             res["fx"][e] = math.sqrt(np.mean((shear[:, 0] - fe[:, 0]) ** 2))
             res["fy"][e] = math.sqrt(np.mean((shear[:, 1] - fe[:, 1]) ** 2))
             res["n"][e] = len(G)
-        return cls(model, sensor, camera, _plain(pipeline_options or {}), g_c, g_scale, f_c,
+        return cls(model, sensor, camera, _resolved(sensor, camera, pipeline_options or {}),
+                   g_c, g_scale, f_c,
                    u_scale, g_max, u_max, gu, res, dict(provenance or {}))
 
     # ------------------------------------------------------------------ applying

@@ -285,7 +285,9 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     ccd = ccd or CCD()
     design = design or Design()
     options = dict(pipeline_options or {})
-    Pipeline(sensor, camera, **options)  # validate the options before any work
+    check = Pipeline(sensor, camera, **options)  # validate the options before any work
+    # the region geometry as used, so the readings stay interpretable if defaults change
+    options |= {"radius": check.grids.radius, "grid_mm": check.grids.grid_mm}
     from dataclasses import asdict
 
     attrs = _set_attrs(sensor=sensor, camera=camera, ccd=ccd, design=design, spp=spp, seed=seed,
@@ -307,6 +309,11 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         except Exception as exc:  # zarr raises several kinds for a non-store
             raise InputError(f"{path} exists and is not a Zarr calibration set ({exc})") from None
         old = dict(group.attrs)
+        if isinstance(old.get("pipeline"), dict) and "radius" not in old["pipeline"]:
+            # a set from before the geometry was stored: its defaults resolve as ours do
+            old["pipeline"] = {**old["pipeline"], "radius": check.grids.radius,
+                               "grid_mm": check.grids.grid_mm}
+        old.setdefault("render_mode", "full")  # sets from before render modes rendered whole frames
         mismatch = sorted(k for k in attrs if k != "library_version" and old.get(k) != attrs[k])
         if mismatch:
             raise InputError(f"{path} holds a calibration set made with other settings "

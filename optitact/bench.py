@@ -399,6 +399,10 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
             return CalibrationSet(given)
         path = sets / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}.zarr"
         print(f"optitact: bench accuracy: {tag} set {path}", file=sys.stderr)
+        if path.exists():
+            cached = CalibrationSet(path)
+            if cached.complete:  # made earlier (possibly by an older version): use as is
+                return cached
         return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant)
 
     test_spp = spp if test_spp is None else integer(test_spp, "test_spp", minimum=1)
@@ -413,7 +417,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     out: dict = {"size": f"{camera.width}x{camera.height}", "spp": int(cs.attrs["spp"]),
                  "test_spp": int(ts.attrs["spp"]),
                  "calibration_set": {"path": str(cs.path), "frames": int(cs.done.sum()),
-                                     "seed": cs.attrs["seed"]},
+                                     "seed": cs.attrs["seed"],
+                                     "render_mode": cs.attrs.get("render_mode", "full")},
                  "test_set": {"path": str(ts.path), "frames": int(ts.done.sum()),
                               "seed": ts.attrs["seed"], "samples": int(truth[..., 0].size)},
                  "full_scale_n": {"fx": fs[0], "fy": fs[1], "fz": fs[2]},

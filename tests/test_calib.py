@@ -172,7 +172,9 @@ def test_json_round_trip(cal, analytic, tmp_path):
     assert doc["model"] == "coupled" and doc["fingerprint"] == cal.fingerprint
     back = Calibration.load(path, sensor=SENSOR, camera=SMALL)
     np.testing.assert_array_equal(back.forces(r)[0], cal.forces(r)[0])
-    assert back.pipeline_options == {"noise_sigma": 0.5}
+    pipe = optitact.Pipeline(SENSOR, SMALL)
+    assert back.pipeline_options == {"noise_sigma": 0.5, "radius": pipe.grids.radius,
+                                     "grid_mm": pipe.grids.grid_mm}
     assert back.pipeline().threshold == 1.5
 
 
