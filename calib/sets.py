@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -288,8 +288,6 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     check = Pipeline(sensor, camera, **options)  # validate the options before any work
     # the region geometry as used, so the readings stay interpretable if defaults change
     options |= {"radius": check.grids.radius, "grid_mm": check.grids.grid_mm}
-    from dataclasses import asdict
-
     attrs = _set_attrs(sensor=sensor, camera=camera, ccd=ccd, design=design, spp=spp, seed=seed,
                        n_frames=frames, keep_frames=bool(keep_frames),
                        settings=asdict(RenderSettings()), pipeline_options=options,

@@ -23,6 +23,7 @@ from optitact._validate import finite, positive, real_array
 from optitact.camera import FisheyeCamera, _radial_map
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
+from optitact.io import csv_numbers, csv_rows
 from optitact.sensor import DomeSensor
 
 __all__ = ["ForceField", "global_from_local", "local_from_global"]
@@ -284,13 +285,7 @@ class ForceField:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"force field file not found: {path}")
-        rows: list[tuple[int, list[str]]] = []
-        with path.open(newline="") as fh:
-            for lineno, row in enumerate(csv.reader(fh), start=1):
-                cells = [c.strip() for c in row]
-                if not any(cells) or cells[0].startswith("#"):
-                    continue
-                rows.append((lineno, cells))
+        rows = csv_rows(path)
         if not rows or tuple(c.lower() for c in rows[0][1]) != _CSV_COLUMNS:
             got = rows[0][1] if rows else "an empty file"
             raise ShapeError(f"{path}: expected the header {', '.join(_CSV_COLUMNS)}, got {got}")
@@ -305,16 +300,7 @@ class ForceField:
                 raise ShapeError(
                     f"{path}, line {lineno}: expected {len(_CSV_COLUMNS)} columns, got {len(cells)}"
                 )
-            for j, cell in enumerate(cells[:7]):
-                try:
-                    v = float(cell)
-                except ValueError:
-                    raise InputError(
-                        f"{path}, line {lineno}, column {j + 1}: {cell!r} is not a number"
-                    ) from None
-                if not math.isfinite(v):
-                    raise InputError(f"{path}, line {lineno}, column {j + 1}: {cell!r} is not finite")
-                values[i, j] = v
+            values[i] = csv_numbers(cells[:7], path, lineno)
             for j, cell in enumerate(cells[7:]):
                 if cell not in ("0", "1"):
                     raise InputError(

@@ -24,6 +24,32 @@ __all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "Re
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
 
+def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
+    """Non-blank, non-comment rows of a CSV file as ``(line number, stripped cells)``."""
+    rows: list[tuple[int, list[str]]] = []
+    with Path(path).open(newline="") as fh:
+        for lineno, row in enumerate(csv.reader(fh), start=1):
+            cells = [c.strip() for c in row]
+            if not any(cells) or cells[0].startswith("#"):
+                continue
+            rows.append((lineno, cells))
+    return rows
+
+
+def csv_numbers(cells: Sequence[str], path, lineno: int, first_column: int = 1) -> list[float]:
+    """Parse CSV cells as finite numbers; InputError naming line and column otherwise."""
+    out = []
+    for j, cell in enumerate(cells, start=first_column):
+        try:
+            v = float(cell)
+        except ValueError:
+            raise InputError(f"{path}, line {lineno}, column {j}: {cell!r} is not a number") from None
+        if not math.isfinite(v):
+            raise InputError(f"{path}, line {lineno}, column {j}: {cell!r} is not finite")
+        out.append(v)
+    return out
+
+
 def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
     """Read element-local forces (N) from a CSV file.
 
@@ -51,13 +77,7 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"forces file not found: {path}")
-    rows: list[tuple[int, list[str]]] = []
-    with path.open(newline="") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            cells = [c.strip() for c in row]
-            if not any(cells) or cells[0].startswith("#"):
-                continue
-            rows.append((lineno, cells))
+    rows = csv_rows(path)
     if rows and [c.lower() for c in rows[0][1]] in _HEADERS:
         rows = rows[1:]
     if not rows:
@@ -72,16 +92,7 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
     for i, (lineno, cells) in enumerate(rows):
         if len(cells) != width:
             raise ShapeError(f"{path}, line {lineno}: expected {width} columns, got {len(cells)}")
-        for j, cell in enumerate(cells):
-            try:
-                v = float(cell)
-            except ValueError:
-                raise InputError(
-                    f"{path}, line {lineno}, column {j + 1}: {cell!r} is not a number"
-                ) from None
-            if not math.isfinite(v):
-                raise InputError(f"{path}, line {lineno}, column {j + 1}: {cell!r} is not finite")
-            values[i, j] = v
+        values[i] = csv_numbers(cells, path, lineno)
     if len(rows) != n_elements:
         raise ShapeError(f"{path}: expected {n_elements} rows (one per element), got {len(rows)}")
     if width == 4:

@@ -198,11 +198,10 @@ def spot_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces, *,
     The union of the region footprints (:func:`optitact.pipeline.split_regions`)
     of elements with ``Fz > 0``, grown by ``margin`` pixels.
     """
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline import _fold, split_regions
 
     f = check_forces(forces, sensor)
-    pipe = Pipeline(sensor, camera)
-    fold = pipe._fold
+    fold = _fold(split_regions(sensor, camera), camera.shape)
     mask = np.zeros(camera.height * camera.width, bool)
     mask[fold.pixel[np.isin(fold.label, np.flatnonzero(f[:, 2] > 0))]] = True
     mask = mask.reshape(camera.shape)
