@@ -11,7 +11,7 @@ import sys
 import pytest
 
 MODULES = ["optitact.sensor", "optitact.camera", "optitact.contact", "optitact.ccd",
-           "optitact.forces", "optitact.render", "optitact.pipeline", "optitact.readings"]
+           "optitact.forces", "optitact.render", "optitact.pipeline", "optitact.readings", "optitact.sources"]
 
 
 @pytest.mark.parametrize("name", MODULES)
