@@ -13,6 +13,8 @@ identical to an uninterrupted run.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import os
 import sys
@@ -28,7 +30,10 @@ from optitact.errors import InputError
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
-__all__ = ["SCHEMA", "Design", "CalibrationSet", "design_forces", "frame_seeds", "generate"]
+__all__ = ["SCHEMA", "Design", "CalibrationSet", "design_forces", "frame_seeds", "generate", "RENDER_MODES"]
+
+#: How :func:`generate` renders its frames (see its ``render_mode``).
+RENDER_MODES = ("two_stage", "pixels", "full")
 
 SCHEMA = "optitact.calibration-set"
 SCHEMA_VERSION = 1
@@ -219,7 +224,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
              camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 64,
              seed: int = 0, design: Design | None = None, keep_frames: bool = False,
              variant: str | None = None, pipeline_options: dict | None = None,
-             baseline_frames: int = 4, render_mode: str = "pixels",
+             baseline_frames: int = 4, render_mode: str = "two_stage", table=None,
              progress: bool = True) -> CalibrationSet:
     """Create or finish a synthetic calibration set (resumable).
 
@@ -248,12 +253,18 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         No-load frames rendered for the baseline (default 4): their mean is
         subtracted and their per-pixel noise sets the threshold (the faint
         guided light of the background carries Monte Carlo noise of its own).
-    render_mode : {"pixels", "full"}
-        ``"pixels"`` (default) renders only the pixels the pipeline reads for
-        the loaded elements (:func:`optitact.render.spot_pixels`), composited
-        over the mean no-load radiance; ``"full"`` renders whole frames. The
-        readings are the same up to Monte Carlo noise; pixels is about 2x
-        faster with all 41 elements loaded at 640 x 480.
+    render_mode : {"two_stage", "pixels", "full"}
+        ``"two_stage"`` (default): the two-stage light transport
+        (:mod:`optitact.render.twostage`; ``spp`` then applies to the no-load
+        baseline frames only), a few hundredths of a second per frame with no
+        Monte Carlo noise; ``"pixels"``: path-traced, only the pixels the
+        pipeline reads for the loaded elements
+        (:func:`optitact.render.spot_pixels`), composited over the mean
+        no-load radiance; ``"full"``: path-traced whole frames. ``optitact
+        bench render`` measures each against converged path tracing.
+    table : EmissionTable, optional
+        ``"two_stage"`` only: the stage-1 table (default: the cached one for
+        this sensor and camera, measured on first use, a few minutes).
     progress : bool
         Show a progress bar (frames/s, ETA) on stderr.
 
@@ -275,8 +286,10 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     frames = integer(frames, "frames", minimum=1)
     spp = integer(spp, "spp", minimum=1)
     baseline_frames = integer(baseline_frames, "baseline_frames", minimum=1)
-    if render_mode not in ("pixels", "full"):
-        raise InputError(f"render_mode must be 'pixels' or 'full', got {render_mode!r}")
+    if render_mode not in RENDER_MODES:
+        raise InputError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+    if table is not None and render_mode != "two_stage":
+        raise InputError("table is for render_mode='two_stage'")
     seed = seed_value(seed)
     if seed is None:
         raise InputError("a calibration set needs an integer seed (it is how frames resume)")
@@ -292,6 +305,13 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
                        n_frames=frames, keep_frames=bool(keep_frames),
                        settings=asdict(RenderSettings()), pipeline_options=options,
                        baseline_frames=baseline_frames, render_mode=render_mode)
+    if render_mode == "two_stage":
+        from optitact.render.twostage import emission_table
+
+        table = table if table is not None else emission_table(sensor, camera, variant=variant,
+                                                               progress=progress)
+        attrs["two_stage_table"] = hashlib.sha256(
+            json.dumps(table.to_dict()["radiance"]).encode()).hexdigest()[:16]
     path = Path(path)
     n_el, (h, w) = sensor.n_elements, camera.shape
     if path.exists() and (path / "zarr.json").is_file():
@@ -358,7 +378,10 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         for i in todo:
             f = np.asarray(group["forces"][i])
             s = int(seeds[i])
-            if render_mode == "pixels":
+            if render_mode == "two_stage":
+                radiance = render(sensor, f, camera=camera, transport="two_stage", table=table,
+                                  background=background)
+            elif render_mode == "pixels":
                 radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant,
                                   pixels=spot_pixels(sensor, camera, f), background=background)
             else:

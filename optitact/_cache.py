@@ -29,7 +29,7 @@ def cache_dir() -> Path:
 
 
 def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str | None = None,
-                  spot_pixels_only: bool = False) -> np.ndarray:
+                  spot_pixels_only: bool = False, settings=None) -> np.ndarray:
     """:func:`optitact.render.render` through the cache, keyed by every input that changes the image.
 
     The key holds the sensor, camera, forces (exact float64 bytes), spp, seed,
@@ -42,9 +42,10 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
     from .render import RenderSettings, render, select_variant
 
     used = select_variant(variant)[1]
+    settings = RenderSettings() if settings is None else settings
     f = np.ascontiguousarray(forces, dtype=np.float64)
     key = json.dumps({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "spp": spp,
-                      "seed": seed, "settings": asdict(RenderSettings()), "variant": used,
+                      "seed": seed, "settings": asdict(settings), "variant": used,
                       "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest(),
                       "spot_pixels_only": bool(spot_pixels_only)},
                      sort_keys=True)
@@ -55,10 +56,10 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
     if spot_pixels_only:
         from .render import spot_pixels
 
-        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used,
+        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings,
                      pixels=spot_pixels(sensor, camera, f))
     else:
-        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used)
+        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
     with tmp.open("wb") as fh:

@@ -16,7 +16,10 @@ from .errors import InputError
 from .camera import FisheyeCamera
 from .sensor import DomeSensor
 
-__all__ = ["bench_render", "bench_pipeline", "bench_accuracy"]
+__all__ = ["bench_render", "bench_pipeline", "bench_accuracy", "RENDER_MODES"]
+
+#: First samples per pixel of the adaptive mode (it then adds passes of 16 until its target).
+SPP_MIN_ADAPTIVE = 64
 
 
 def render_cases(sensor: DomeSensor, seed: int = 11) -> dict[str, np.ndarray]:
@@ -51,22 +54,37 @@ def _render_readings(images: dict, sensor, camera, noload, ccd, cal):
     return out
 
 
-def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp: int = 1024,
+#: Render modes of :func:`bench_render`, and what their "setting" is.
+RENDER_MODES = {"brute": "spp", "pixels": "spp", "adaptive": "target relative error per element",
+                "two_stage": "sub-pixel rays per side"}
+
+
+def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "two_stage"),
+                 targets=(0.02, 0.01, 0.005), n_subs=(4, 8), reference_spp: int = 4096,
                  width: int = 640, height: int = 480, repeats: int = 1, cases=None,
                  target_pct_fs: float = 0.5, variant: str | None = None, seed: int = 0,
-                 plot=None) -> dict:
-    """Render time against the error it leaves, per mode and spp, on fixed load cases.
+                 plot=None, progress: bool = True) -> dict:
+    """Render time against the error it leaves, per mode and setting, on fixed load cases.
 
     Parameters
     ----------
     spps : sequence of int
-        Samples per pixel to measure for every mode.
-    modes : sequence of {"brute", "pixels"}
-        ``"brute"``: full frames; ``"pixels"``: only the spot pixels of the
-        loaded elements (:func:`optitact.render.spot_pixels`).
+        Samples per pixel measured for ``"brute"`` and ``"pixels"``.
+    modes : sequence of str
+        ``"brute"``: path-traced full frames (the reference method);
+        ``"pixels"``: path-traced, only the loaded elements' pixels
+        (:func:`optitact.render.spot_pixels`) over the cached no-load frame;
+        ``"adaptive"``: as ``"pixels"``, with passes until every loaded
+        element's summed radiance reaches a target relative standard error;
+        ``"two_stage"``: the two-stage light transport
+        (:mod:`optitact.render.twostage`), no Monte Carlo noise.
+    targets : sequence of float
+        Target relative errors measured for ``"adaptive"``.
+    n_subs : sequence of int
+        Sub-pixel rays per side measured for ``"two_stage"``.
     reference_spp : int
         Samples per pixel of the converged reference of each case (spot
-        pixels only, which is the same estimator per pixel; cached on disk).
+        pixels only, the same estimator per pixel; cached on disk).
     width, height : int
     repeats : int
         Renders per row; times are medians, errors are RMS over repeats.
@@ -80,24 +98,30 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp
     plot : path-like, optional
         Error against time (log-log), one curve per mode, for the 41-element
         case (or the last case).
+    progress : bool
+        Show a progress bar on stderr.
 
     Returns
     -------
     dict
-        ``rows`` (case, mode, spp, seconds, G relative error, u error (mm),
-        force error (% FS) through the shipped calibration where it applies
-        to this camera), ``pareto`` per case, and ``headline``:
-        ``speedup_at_equal_error`` (brute seconds / best mode seconds at
-        ``target_pct_fs``, both extrapolated with error ~ 1/sqrt(spp) and
-        time ~ spp from their largest-spp rows) and ``calibration_frame_s``
-        (the best mode's seconds for the 41-element frame at that error).
+        ``rows`` (case, mode, setting, seconds, G relative error, u error
+        (mm), force error (% FS) through the shipped calibration where it
+        applies to this camera),
+        ``pareto`` per case, ``one_time_s`` (the cached no-load frame and the
+        two-stage table, which every later frame reuses) and ``headline``:
+        ``seconds_at_target`` per mode for the 41-element case,
+        ``speedup_at_equal_error`` (brute ÷ best mode) and
+        ``calibration_frame_s`` (the best mode's seconds).
 
     Notes
     -----
     Errors are those of the render alone: radiance is turned into
     noise-free DN (:meth:`CCD.mean_dn`), read with a pipeline whose
-    baseline is a 256-spp no-load render, and compared with the
-    reference's readings on the loaded elements.
+    baseline is the converged no-load frame, and compared with the
+    reference's readings on the loaded elements. Path-traced modes whose
+    largest setting misses the target are extrapolated with error ~
+    1/sqrt(spp) and time ~ spp; the two-stage mode has no noise to average
+    away, so it reaches the target only if one of its rows does.
     """
     from tqdm import tqdm
 
@@ -105,13 +129,18 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp
     from .calib import default_calibration
     from .ccd import CCD
     from .render import active_variant, render, spot_pixels
+    from .render.twostage import emission_table, noload_radiance
 
     spps = tuple(integer(v, "spps[]", minimum=1) for v in spps)
+    n_subs = tuple(integer(v, "n_subs[]", minimum=1) for v in n_subs)
+    targets = tuple(float(t) for t in targets)
+    if any(not 0 < t < 1 for t in targets):
+        raise InputError(f"targets must lie in (0, 1), got {targets}")
     repeats = integer(repeats, "repeats", minimum=1)
     reference_spp = integer(reference_spp, "reference_spp", minimum=1)
     for m in modes:
-        if m not in ("brute", "pixels"):
-            raise InputError(f"modes must be 'brute' or 'pixels', got {m!r}")
+        if m not in RENDER_MODES:
+            raise InputError(f"modes must be among {sorted(RENDER_MODES)}, got {m!r}")
     sensor = DomeSensor.default()
     camera = FisheyeCamera(width=integer(width, "width", minimum=2),
                            height=integer(height, "height", minimum=2))
@@ -125,12 +154,22 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp
     if cal.camera != camera:
         cal = None
     render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera, spp=1, variant=variant)
-    noload = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera, spp=256,
-                           seed=seed + 7, variant=variant)
+    one_time = {}
+    t0 = time.perf_counter()
+    noload = noload_radiance(sensor, camera, variant=variant)
+    one_time["noload_s"] = round(time.perf_counter() - t0, 2)
+    table = None
+    if "two_stage" in modes:
+        t0 = time.perf_counter()
+        table = emission_table(sensor, camera, variant=variant, progress=progress)
+        one_time["two_stage_table_s"] = round(time.perf_counter() - t0, 2)
+        one_time["two_stage_table_build_s"] = table.meta.get("seconds")
+    settings = {"brute": spps, "pixels": spps, "adaptive": targets, "two_stage": n_subs}
     fs = np.array([0.5, 0.5, 1.0])
     rows = []
-    jobs = [(c, m, spp, k) for c in names for m in modes for spp in spps for k in range(repeats)]
-    bar = tqdm(total=len(jobs) + len(names), desc="bench render", unit="render", file=sys.stderr)
+    jobs = [(c, m, v, k) for c in names for m in modes for v in settings[m] for k in range(repeats)]
+    bar = tqdm(total=len(jobs) + len(names), desc="bench render", unit="render", file=sys.stderr,
+               disable=not progress)
     for case in names:
         f = all_cases[case]
         loaded = f[:, 2] > 0
@@ -140,29 +179,37 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp
         ref = np.where(mask, ref, noload)
         bar.update(1)
         for mode in modes:
-            for spp in spps:
+            for value in settings[mode]:
                 times, images = [], {}
                 for k in range(repeats):
-                    kw = {} if mode == "brute" else dict(pixels=mask, background=noload)
+                    kw = dict(camera=camera, seed=seed + 100 + k, variant=variant)
+                    if mode == "brute":
+                        kw.update(spp=value)
+                    elif mode == "pixels":
+                        kw.update(spp=value, pixels=mask, background=noload)
+                    elif mode == "adaptive":
+                        kw.update(spp=SPP_MIN_ADAPTIVE, pixels=mask, background=noload,
+                                  target_error=value, max_spp=reference_spp)
+                    else:
+                        kw.update(transport="two_stage", n_sub=value, table=table, background=noload)
                     t0 = time.perf_counter()
-                    images[k] = render(sensor, f, camera=camera, spp=spp, seed=seed + 100 + k,
-                                       variant=variant, **kw)
+                    images[k] = render(sensor, f, **kw)
                     times.append(time.perf_counter() - t0)
                     bar.update(1)
                 images["ref"] = ref
                 read = _render_readings(images, sensor, camera, noload, ccd, cal)
                 r_ref, f_ref = read.pop("ref")
                 seen = loaded & r_ref.contact  # loaded elements the reference sees
+                if not seen.any():
+                    raise InputError(f"case {case}: the reference shows no loaded element at "
+                                     f"{camera.width}x{camera.height}; use a larger image")
                 g_err, u_err, f_err = [], [], []
                 for r, est in read.values():
                     g_err.append((r.G[seen] - r_ref.G[seen]) / r_ref.G[seen])
                     u_err.append(np.linalg.norm(r.u[seen] - r_ref.u[seen], axis=-1))
                     if est is not None:
                         f_err.append((est[loaded] - f_ref[loaded]) / fs)
-                if not seen.any():
-                    raise InputError(f"case {case}: the reference shows no loaded element at "
-                                     f"{camera.width}x{camera.height}; use a larger image")
-                row = {"case": case, "mode": mode, "spp": spp,
+                row = {"case": case, "mode": mode, "setting": value,
                        "seconds": round(float(np.median(times)), 4),
                        "g_rel_error": round(float(np.sqrt(np.mean(np.square(g_err)))), 5),
                        "u_error_mm": round(float(np.sqrt(np.mean(np.square(u_err)))), 5)}
@@ -180,27 +227,33 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels"), reference_spp
         for row in sorted((r for r in rows if r["case"] == case), key=lambda r: r["seconds"]):
             if row[err_key] < best:
                 best = row[err_key]
-                front.append(f"{row['mode']}@{row['spp']}")
+                front.append(f"{row['mode']}@{row['setting']}")
         pareto[case] = front
 
     def time_at_target(case, mode):
-        top = max((r for r in rows if r["case"] == case and r["mode"] == mode),
-                  key=lambda r: r["spp"])
-        spp_needed = top["spp"] * (top[err_key] / target) ** 2
-        return top["seconds"] / top["spp"] * spp_needed
+        mine = [r for r in rows if r["case"] == case and r["mode"] == mode]
+        ok = [r["seconds"] for r in mine if r[err_key] <= target]
+        if ok:
+            return min(ok)
+        if mode == "two_stage":
+            return None
+        # Monte Carlo modes: error ~ 1/sqrt(time) from the most accurate row.
+        top = min(mine, key=lambda r: r[err_key])
+        return top["seconds"] * (top[err_key] / target) ** 2
 
     head_case = "41" if "41" in names else names[-1]
     t_modes = {m: time_at_target(head_case, m) for m in modes}
-    best_mode = min(t_modes, key=t_modes.get)
+    reached = {m: t for m, t in t_modes.items() if t is not None}
+    best_mode = min(reached, key=reached.get)
     headline = {"case": head_case, "error_measure": err_key, "target": target,
-                "seconds_at_target": {m: round(t, 3) for m, t in t_modes.items()},
+                "seconds_at_target": {m: None if t is None else round(t, 4) for m, t in t_modes.items()},
                 "best_mode": best_mode,
-                "calibration_frame_s": round(t_modes[best_mode], 3)}
-    if "brute" in t_modes:
-        headline["speedup_at_equal_error"] = round(t_modes["brute"] / t_modes[best_mode], 2)
+                "calibration_frame_s": round(reached[best_mode], 4)}
+    if "brute" in reached:
+        headline["speedup_at_equal_error"] = round(reached["brute"] / reached[best_mode], 1)
     result = {"variant": active_variant()["variant"], "size": f"{camera.width}x{camera.height}",
-              "reference_spp": reference_spp, "repeats": repeats, "rows": rows,
-              "pareto": pareto, "headline": headline,
+              "reference_spp": reference_spp, "repeats": repeats, "settings": RENDER_MODES,
+              "one_time_s": one_time, "rows": rows, "pareto": pareto, "headline": headline,
               "calibration": "shipped (default)" if cal is not None else None}
     if plot is not None:
         from matplotlib.figure import Figure

@@ -163,9 +163,11 @@ def _parser() -> argparse.ArgumentParser:
     gen.add_argument("--mu-max", type=float, default=0.35,
                      help="largest shear/normal ratio (default 0.35; the feeler tips at ~0.37)")
     gen.add_argument("--keep-frames", action="store_true", help="also store the frames")
-    gen.add_argument("--render-mode", choices=("pixels", "full"), default="pixels",
-                     help="render only the pixels the pipeline reads, over the no-load render "
-                          "(default, ~2x faster) or whole frames")
+    gen.add_argument("--render-mode", choices=("two_stage", "pixels", "full"), default="two_stage",
+                     help="two_stage (default): guided light from a cached table (measured on first "
+                          "use, minutes), patches traced as emitters, ~0.05 s/frame, no Monte Carlo "
+                          "noise; pixels: path-trace only the pixels the pipeline reads; full: "
+                          "path-trace whole frames (--spp applies to path tracing and the baseline)")
     gen.add_argument("--width", type=_positive_int, default=640, help="image width (default 640)")
     gen.add_argument("--height", type=_positive_int, default=480,
                      help="image height (default 480)")
@@ -189,21 +191,30 @@ def _parser() -> argparse.ArgumentParser:
                     "medians over repeats in one run. Output: one JSON object on stdout.")
     bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
     brender = bsub.add_parser(
-        "render", help="render time against the error it leaves, per mode and spp",
+        "render", help="render time against the error it leaves, per mode and setting",
         description="For fixed load cases (1, 5 and 41 loaded elements, light and heavy), render "
-                    "with each mode (brute: full frames; pixels: only the pixels the pipeline "
-                    "reads for the loaded elements, over a no-load render) at several spp, and "
+                    "with each mode (brute: path-traced full frames; pixels: path-traced, only the "
+                    "pixels the pipeline reads for the loaded elements, over the cached no-load "
+                    "frame; adaptive: pixels with passes until each element reaches a target "
+                    "relative standard error; two_stage: guided light to the patches from a cached "
+                    "table, patches traced in closed form as emitters) at several settings, and "
                     "compare the readings with a converged reference (cached on disk after the "
                     "first run): G relative error, u error (mm) and the force error through the "
-                    "shipped calibration (% FS). Prints the rows, the Pareto front per case, and "
-                    "the speed-up at equal error and the seconds of a 41-element frame at the "
-                    "target error.")
+                    "shipped calibration (%% FS). Prints the rows, the Pareto front per case, the "
+                    "one-time costs, and the speed-up at equal error and the seconds of a "
+                    "41-element frame at the target error. The first run measures the two-stage "
+                    "table and the references (minutes); later runs reuse them.")
     brender.add_argument("--spp", type=_positive_int, nargs="+", default=[16, 64, 256],
-                         help="samples per pixel to measure (default 16 64 256)")
-    brender.add_argument("--modes", nargs="+", choices=("brute", "pixels"),
-                         default=["brute", "pixels"], help="render modes (default both)")
-    brender.add_argument("--reference-spp", type=_positive_int, default=1024,
-                         help="samples per pixel of the converged references (default 1024)")
+                         help="samples per pixel for brute and pixels (default 16 64 256)")
+    brender.add_argument("--targets", type=float, nargs="+", default=[0.02, 0.01, 0.005],
+                         help="target relative errors for adaptive (default 0.02 0.01 0.005)")
+    brender.add_argument("--n-sub", type=_positive_int, nargs="+", default=[4, 8],
+                         help="sub-pixel rays per side for two_stage (default 4 8)")
+    brender.add_argument("--modes", nargs="+", choices=("brute", "pixels", "adaptive", "two_stage"),
+                         default=["brute", "pixels", "adaptive", "two_stage"],
+                         help="render modes (default all four)")
+    brender.add_argument("--reference-spp", type=_positive_int, default=4096,
+                         help="samples per pixel of the converged references (default 4096)")
     brender.add_argument("--cases", nargs="+", default=None,
                          help="load cases (default all: 1-light 1-heavy 5-light 5-heavy 41)")
     brender.add_argument("--repeats", type=_positive_int, default=1,
@@ -582,8 +593,8 @@ def _bench(args) -> int:
                                 repeats=args.repeats, spp=args.spp, seed=args.seed,
                                 variant=args.variant)
     else:
-        result = bench_render(tuple(args.spp), modes=tuple(args.modes),
-                              reference_spp=args.reference_spp, width=args.width,
+        result = bench_render(tuple(args.spp), modes=tuple(args.modes), targets=tuple(args.targets),
+                              n_subs=tuple(args.n_sub), reference_spp=args.reference_spp, width=args.width,
                               height=args.height, repeats=args.repeats, cases=args.cases,
                               target_pct_fs=args.target, variant=args.variant, plot=args.plot)
     print(json.dumps(result))

@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from optitact._validate import integer, seed_value
+from optitact._validate import integer, positive, seed_value
 from optitact.camera import FisheyeCamera
 from optitact.contact import Contacts, check_forces, contact_patches
 from optitact.errors import InputError
@@ -30,9 +30,11 @@ from optitact.sensor import DomeSensor
 from ._backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
 from .scene import RenderSettings
 
-__all__ = ["render", "render_contacts", "spot_pixels", "RenderSettings", "select_variant",
+__all__ = ["render", "render_contacts", "spot_pixels", "RenderSettings", "select_variant", "TRANSPORTS",
            "active_variant", "find_libllvm", "PREFERRED_VARIANTS", "pass_seeds"]
 
+#: Light transport modes of :func:`render`.
+TRANSPORTS = ("path", "two_stage")
 #: Samples per pixel rendered in one Mitsuba launch; larger spp runs as several passes.
 SPP_PER_PASS = 16
 
@@ -59,7 +61,8 @@ def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None
 def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, spp: int = 64,
            seed: int = 0, variant: str | None = None, settings: RenderSettings | None = None,
            crop: tuple[int, int, int, int] | None = None, pixels=None, background=None,
-           progress: bool = False) -> np.ndarray:
+           progress: bool = False, transport: str = "path", n_sub: int = 8,
+           table=None, target_error: float | None = None, max_spp: int = 4096) -> np.ndarray:
     """Render the radiance image the camera sees for element-local forces.
 
     Parameters
@@ -90,6 +93,29 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
         on a few small contacts far away).
     progress : bool
         Show a progress bar over render passes on stderr.
+    transport : {"path", "two_stage"}
+        ``"path"`` (default, the reference): brute-force path tracing of the
+        whole light transport at ``spp``. ``"two_stage"``: the light guided to
+        each patch comes from a cached table measured once by path tracing
+        (:func:`~optitact.render.twostage.emission_table`), and the patches
+        are traced in closed form as emitters seen through the dome
+        (:func:`~optitact.render.twostage.render_two_stage`): no Monte Carlo
+        noise, milliseconds per frame; ``spp`` and ``pixels`` are not used,
+        ``background`` defaults to the cached no-load frame the table was
+        measured against.
+    n_sub : int
+        ``"two_stage"`` only: sub-pixel rays per side on patch edges (default 8).
+    table : EmissionTable, optional
+        ``"two_stage"`` only: the stage-1 table (default: measured for this
+        sensor, camera and settings, or loaded from the cache).
+    target_error : float, optional
+        ``"path"`` only, right-sized sampling: render passes of
+        ``SPP_PER_PASS`` samples (at least ``spp``, at least 4 passes) until
+        the summed radiance of every loaded element's region (minus
+        ``background``) has this relative standard error, estimated from the
+        spread of the passes, or ``max_spp`` is reached.
+    max_spp : int
+        Most samples per pixel with ``target_error`` (default 4096).
 
     Returns
     -------
@@ -104,22 +130,39 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
     """
     if not isinstance(sensor, DomeSensor):
         raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
-    check_forces(forces, sensor)
+    f = check_forces(forces, sensor)
+    windows = None
+    if target_error is not None:
+        from optitact.pipeline import _fold, split_regions
+
+        cam = FisheyeCamera() if camera is None else camera
+        if not isinstance(cam, FisheyeCamera):
+            raise TypeError(f"camera must be a FisheyeCamera, got {type(cam).__name__}")
+        fold = _fold(split_regions(sensor, cam), cam.shape)
+        windows = np.full(cam.height * cam.width, -1, np.int64)
+        loaded = np.isin(fold.label, np.flatnonzero(f[:, 2] > 0))
+        windows[fold.pixel[loaded]] = fold.label[loaded]
     return render_contacts(sensor, contact_patches(sensor, forces), camera=camera, spp=spp,
                            seed=seed, variant=variant, settings=settings, crop=crop,
-                           pixels=pixels, background=background, progress=progress)
+                           pixels=pixels, background=background, progress=progress,
+                           transport=transport, n_sub=n_sub, table=table, target_error=target_error,
+                           max_spp=max_spp, windows=windows)
 
 
 def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                     camera: FisheyeCamera | None = None, spp: int = 64, seed: int = 0,
                     variant: str | None = None, settings: RenderSettings | None = None,
                     crop: tuple[int, int, int, int] | None = None, pixels=None,
-                    background=None, progress: bool = False) -> np.ndarray:
+                    background=None, progress: bool = False, transport: str = "path",
+                    n_sub: int = 8, table=None, target_error: float | None = None,
+                    max_spp: int = 4096, windows=None) -> np.ndarray:
     """Render given contact patches (e.g. from :func:`optitact.contact_patches`).
 
     Parameters are those of :func:`render`, with ``contacts`` in place of
     ``forces``: patches need not come from the contact model (a single patch
-    at a chosen dome point, say).
+    at a chosen dome point, say); with ``target_error``, ``windows`` is a
+    flat (H*W,) int array labelling the pixels whose sums must converge
+    (-1: none), which :func:`render` makes from the loaded elements' regions.
     """
     if not isinstance(sensor, DomeSensor):
         raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
@@ -136,7 +179,24 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     if seed is None:
         raise InputError("seed must be a non-negative integer, got None")
     crop = _check_crop(crop, camera)
+    if transport not in TRANSPORTS:
+        raise InputError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+    if transport == "two_stage":
+        if target_error is not None:
+            raise InputError("target_error is for transport='path' (two_stage has no Monte Carlo noise)")
+        return _render_two_stage(sensor, contacts, camera, settings, crop=crop, pixels=pixels,
+                                 background=background, n_sub=n_sub, table=table, variant=variant,
+                                 progress=progress)
     index, background = _check_pixels(pixels, background, camera, crop)
+    if target_error is not None:
+        target_error = positive(target_error, "target_error")
+        max_spp = integer(max_spp, "max_spp", minimum=spp)
+        if crop is not None:
+            raise InputError("target_error works on full frames or pixels=, not crop=")
+        windows = np.asarray(windows if windows is not None else np.full(camera.height * camera.width, -1))
+        if windows.shape != (camera.height * camera.width,) or windows.dtype.kind not in "iu":
+            raise InputError(f"windows must be a flat int array of {camera.height * camera.width} labels, "
+                             f"got {windows.dtype} {windows.shape}")
     if index is not None and index.size == 0:
         return background.copy()
 
@@ -144,9 +204,22 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     from .scene import build_scene
 
     scene = build_scene(mi, sensor, camera, contacts, settings, crop=crop, pixels=index)
-    n_passes = -(-spp // SPP_PER_PASS)
-    counts = [spp // n_passes + (1 if i < spp % n_passes else 0) for i in range(n_passes)]
+    if target_error is None:
+        n_passes = -(-spp // SPP_PER_PASS)
+        counts = [spp // n_passes + (1 if i < spp % n_passes else 0) for i in range(n_passes)]
+    else:
+        # Right-sized sampling: passes of SPP_PER_PASS until every window's estimate has the target
+        # relative standard error (at least spp, at most max_spp samples).
+        n_passes = max(-(-max_spp // SPP_PER_PASS), 2)
+        counts = [SPP_PER_PASS] * n_passes
+        n_min = max(-(-spp // SPP_PER_PASS), 4)
+        label = windows[index] if index is not None else windows
+        keep = label >= 0
+        n_win = int(label.max()) + 1 if keep.any() else 0
+        base = (background.reshape(-1)[index] if index is not None else np.zeros(label.size))[keep]
+        sums = []
     acc = None
+    done = 0
     passes = zip(counts, pass_seeds(seed, n_passes), strict=True)
     if progress:
         from tqdm import tqdm
@@ -155,12 +228,46 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     for count, pass_seed in passes:
         img = np.asarray(mi.render(scene, spp=count, seed=pass_seed), dtype=np.float64)[..., 0]
         acc = img * count if acc is None else acc + img * count
+        done += count
+        if target_error is not None:
+            flat = img.reshape(-1)[:label.size][keep] - base
+            sums.append(np.bincount(label[keep], weights=flat, minlength=n_win))
+            if len(sums) >= n_min:
+                arr = np.array(sums)
+                se = arr.std(axis=0, ddof=1) / np.sqrt(len(sums))
+                if np.all(se <= target_error * np.abs(arr.mean(axis=0))):
+                    break
+    spp = done
     img = (acc / spp).astype(np.float32)
     if index is None:
         return img
     out = background.copy()
     out.reshape(-1)[index] = img.reshape(-1)[:index.size]
     return out
+
+
+def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, background, n_sub, table,
+                      variant, progress):
+    from .twostage import EmissionTable, emission_table, noload_radiance, render_two_stage
+
+    n_sub = integer(n_sub, "n_sub", minimum=1)
+    if pixels is not None:
+        raise InputError("transport='two_stage' renders exactly the pixels patches cover; pixels= is "
+                         "for transport='path'")
+    if table is not None and not isinstance(table, EmissionTable):
+        raise TypeError(f"table must be an EmissionTable, got {type(table).__name__}")
+    if background is not None:
+        _, background = _check_pixels(np.ones(camera.shape, bool), background, camera, None)
+    else:
+        background = noload_radiance(sensor, camera, settings=settings, variant=variant)
+    if table is None:
+        table = emission_table(sensor, camera, settings=settings, variant=variant, progress=progress)
+    img = render_two_stage(sensor, contacts, camera=camera, table=table, background=background,
+                           settings=settings, n_sub=n_sub)
+    if crop is not None:
+        r0, c0, h, w = crop
+        img = img[r0:r0 + h, c0:c0 + w].copy()
+    return img
 
 
 def _check_pixels(pixels, background, camera: FisheyeCamera, crop):

@@ -23,7 +23,7 @@ from optitact.contact import Contacts
 from optitact.errors import InputError
 from optitact.sensor import DomeSensor
 
-__all__ = ["RenderSettings", "shell_mesh", "patch_mesh", "build_scene"]
+__all__ = ["RenderSettings", "shell_mesh", "patch_polygons", "patch_mesh", "build_scene"]
 
 
 @dataclass(frozen=True)
@@ -132,12 +132,20 @@ def shell_mesh(r_in: float, r_out: float, n_polar: int, n_az: int, emitter_gap: 
     }
 
 
-def patch_mesh(contacts: Contacts, *, radius: float, inset: float, segments: int):
-    """One triangle mesh with a flat disc per touching cone, or None if nothing touches.
+def patch_polygons(contacts: Contacts, *, radius: float, inset: float, segments: int):
+    """The flat polygon of every touching cone, or None if nothing touches.
 
-    Each disc is a regular ``segments``-gon in the tangent plane at its patch
-    centre, ``inset`` mm inside the outer surface, with circumradius scaled so
-    that its area equals the contact area ``pi a^2``.
+    Each polygon is a regular ``segments``-gon in the tangent plane at its
+    patch centre, ``inset`` mm inside the outer surface, with circumradius
+    scaled so that its area equals the contact area ``pi a^2``; its vertex
+    ``j`` lies at angle ``2 pi j / segments`` from ``u`` towards ``w``.
+
+    Returns
+    -------
+    tuple or None
+        ``(mid, normal, u, w, circumradius, radius)``: polygon centres (m, 3),
+        outward unit normals, in-plane unit axes, circumradii and contact radii
+        (m,), for the touching cones in row-major ``(element, cone)`` order.
     """
     touching = contacts.radii > 0
     if not touching.any():
@@ -151,8 +159,17 @@ def patch_mesh(contacts: Contacts, *, radius: float, inset: float, segments: int
     w = np.cross(normal, u)
     k = segments
     circ = radii * math.sqrt(2.0 * math.pi / (k * math.sin(2.0 * math.pi / k)))
+    return (radius - inset) * normal, normal, u, w, circ, radii
+
+
+def patch_mesh(contacts: Contacts, *, radius: float, inset: float, segments: int):
+    """One triangle mesh with the flat polygon (:func:`patch_polygons`) of each touching cone, or None."""
+    poly = patch_polygons(contacts, radius=radius, inset=inset, segments=segments)
+    if poly is None:
+        return None
+    mid, normal, u, w, circ, radii = poly
+    k = segments
     ang = 2.0 * np.pi * np.arange(k) / k
-    mid = (radius - inset) * normal
     rim = (mid[:, None, :] + circ[:, None, None]
            * (np.cos(ang)[None, :, None] * u[:, None, :] + np.sin(ang)[None, :, None] * w[:, None, :]))
     m = len(radii)

@@ -233,7 +233,7 @@ def test_default_calibration_loads():
 
 
 # ---------------------------------------------------------------------------- sets
-GEN = dict(camera=TINY, spp=2, seed=5, progress=False)
+GEN = dict(camera=TINY, spp=2, seed=5, progress=False, render_mode="pixels")
 
 
 def test_generate_stores_everything_and_resumes_identically(tmp_path):
@@ -251,17 +251,17 @@ def test_generate_stores_everything_and_resumes_identically(tmp_path):
     with pytest.raises(InputError, match="other settings .*spp"):
         generate(tmp_path / "a.zarr", frames=3, keep_frames=True, **(GEN | {"spp": 3}))
     assert a.attrs["render_mode"] == "pixels"
-    full = generate(tmp_path / "f.zarr", frames=3, render_mode="full", **GEN)
+    full = generate(tmp_path / "f.zarr", frames=3, **(GEN | {"render_mode": "full"}))
     assert full.attrs["render_mode"] == "full" and full.complete
     assert np.array_equal(full.forces(), a.forces())
     with pytest.raises(InputError, match="render_mode"):
-        generate(tmp_path / "g.zarr", frames=3, render_mode="windows", **GEN)
+        generate(tmp_path / "g.zarr", frames=3, **(GEN | {"render_mode": "windows"}))
 
 
 def test_generate_survives_being_killed(tmp_path):
     code = ("import optitact\nfrom optitact.calib import generate\n"
             "generate({path!r}, frames=10, camera=optitact.FisheyeCamera(width=80, height=60), "
-            "spp=2, seed=5, progress=False)\n")
+            "spp=2, seed=5, progress=False, render_mode='pixels')\n")
     killed = tmp_path / "killed.zarr"
     proc = subprocess.Popen([sys.executable, "-c", code.format(path=str(killed))],
                             start_new_session=True)
@@ -290,7 +290,7 @@ def test_generate_survives_being_killed(tmp_path):
 @pytest.fixture(scope="module")
 def small_set(tmp_path_factory):
     return generate(tmp_path_factory.mktemp("sets") / "s.zarr", frames=16, camera=SMALL, spp=16,
-                    seed=2, progress=False, keep_frames=True)
+                    seed=2, progress=False, keep_frames=True, render_mode="pixels")
 
 
 @pytest.mark.render
@@ -360,7 +360,7 @@ def test_cli_process_calibration_errors(cal, tmp_path, capsys):
 def test_cli_generate_then_fit(tmp_path, capsys):
     out = tmp_path / "s.zarr"
     assert main(["calibrate", "generate", "--frames", "2", "--out", str(out), "--spp", "1",
-                 "--width", "80", "--height", "60"]) == 0
+                 "--width", "80", "--height", "60", "--render-mode", "pixels"]) == 0
     assert capsys.readouterr().out.strip() == str(out)
     assert CalibrationSet(out).complete
     assert main(["calibrate", "fit", str(out), "--out", str(tmp_path / "c.json")]) == 2
@@ -379,7 +379,8 @@ def test_calibration_set_errors(tmp_path):
 
 @pytest.mark.render
 def test_bench_accuracy_json(small_set, tmp_path, capsys):
-    held_out = generate(tmp_path / "t.zarr", frames=4, camera=SMALL, spp=16, seed=9, progress=False)
+    held_out = generate(tmp_path / "t.zarr", frames=4, camera=SMALL, spp=16, seed=9, progress=False,
+                        render_mode="pixels")
     plot = tmp_path / "errors.png"
     assert main(["bench", "accuracy", "--calibration-set", str(small_set.path), "--test-set",
                  str(held_out.path), "--plot", str(plot), "--json"]) == 0
