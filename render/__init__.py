@@ -62,7 +62,8 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
            seed: int = 0, variant: str | None = None, settings: RenderSettings | None = None,
            crop: tuple[int, int, int, int] | None = None, pixels=None, background=None,
            progress: bool = False, transport: str = "path", n_sub: int = 8,
-           table=None, target_error: float | None = None, max_spp: int = 4096) -> np.ndarray:
+           table=None, target_error: float | None = None, max_spp: int = 4096,
+           stats: dict | None = None) -> np.ndarray:
     """Render the radiance image the camera sees for element-local forces.
 
     Parameters
@@ -116,6 +117,8 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
         spread of the passes, or ``max_spp`` is reached.
     max_spp : int
         Most samples per pixel with ``target_error`` (default 4096).
+    stats : dict, optional
+        Filled with what the render did: ``spp`` (samples per pixel used).
 
     Returns
     -------
@@ -146,7 +149,7 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
                            seed=seed, variant=variant, settings=settings, crop=crop,
                            pixels=pixels, background=background, progress=progress,
                            transport=transport, n_sub=n_sub, table=table, target_error=target_error,
-                           max_spp=max_spp, windows=windows)
+                           max_spp=max_spp, windows=windows, stats=stats)
 
 
 def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
@@ -155,7 +158,7 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                     crop: tuple[int, int, int, int] | None = None, pixels=None,
                     background=None, progress: bool = False, transport: str = "path",
                     n_sub: int = 8, table=None, target_error: float | None = None,
-                    max_spp: int = 4096, windows=None) -> np.ndarray:
+                    max_spp: int = 4096, windows=None, stats: dict | None = None) -> np.ndarray:
     """Render given contact patches (e.g. from :func:`optitact.contact_patches`).
 
     Parameters are those of :func:`render`, with ``contacts`` in place of
@@ -238,6 +241,8 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                 if np.all(se <= target_error * np.abs(arr.mean(axis=0))):
                     break
     spp = done
+    if stats is not None:
+        stats["spp"] = spp
     img = (acc / spp).astype(np.float32)
     if index is None:
         return img

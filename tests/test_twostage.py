@@ -190,3 +190,33 @@ def test_calibration_set_from_two_stage_frames(tiny_table, tmp_path):
     assert abs(ratio - 1) < 0.06, ratio
     with pytest.raises(ValueError, match="table is for render_mode='two_stage'"):
         generate(tmp_path / "c.zarr", render_mode="pixels", table=tiny_table, **kw)
+
+
+def test_adaptive_sampling_reaches_its_target():
+    """target_error: passes until each loaded element's summed radiance has that relative
+    standard error; a looser target stops earlier, and the result is within ~3 targets of a
+    converged render."""
+    bg = noload_radiance(SENSOR, CAM)
+    mask = spot_pixels(SENSOR, CAM, LOAD)
+    ref = render(SENSOR, LOAD, camera=CAM, spp=4096, seed=1, pixels=mask, background=bg)
+    from optitact.pipeline import _fold, split_regions
+
+    fold = _fold(split_regions(SENSOR, CAM), CAM.shape)
+
+    def sums(img):
+        d = (img - bg).reshape(-1)
+        return np.array([d[fold.pixel[fold.label == e]].sum() for e in LOADED])
+
+    used = {}
+    for target in (0.05, 0.01):
+        st = {}
+        img = render(SENSOR, LOAD, camera=CAM, spp=16, seed=2, pixels=mask, background=bg,
+                     target_error=target, max_spp=4096, stats=st)
+        used[target] = st["spp"]
+        np.testing.assert_allclose(sums(img), sums(ref), rtol=3 * target + 0.01)
+    assert used[0.05] < used[0.01] <= 4096
+    assert used[0.05] >= 64  # at least 4 passes to estimate the spread
+    with pytest.raises(ValueError, match="target_error must be finite and > 0"):
+        render(SENSOR, LOAD, camera=CAM, target_error=0)
+    with pytest.raises(ValueError, match="target_error is for transport='path'"):
+        render(SENSOR, LOAD, camera=CAM, target_error=0.01, transport="two_stage")
