@@ -30,7 +30,8 @@ from optitact.errors import InputError
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
-__all__ = ["SCHEMA", "Design", "CalibrationSet", "design_forces", "frame_seeds", "generate", "RENDER_MODES"]
+__all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "design_forces", "frame_seeds", "generate",
+           "RENDER_MODES"]
 
 #: How :func:`generate` renders its frames (see its ``render_mode``).
 RENDER_MODES = ("two_stage", "pixels", "full")
@@ -220,12 +221,100 @@ class CalibrationSet:
         return self.array("forces")[self.done]
 
 
+@dataclass(frozen=True, eq=False)
+class FrameMaker:
+    """Everything one calibration frame needs, as one picklable callable (a task on a cluster).
+
+    ``maker(forces, seed)`` renders the frame (``render_mode``), exposes it
+    and reads it with the set's pipeline; returns ``G``, ``u``, ``contact``,
+    ``saturated`` and, with ``keep_frames``, ``frame``. The pipeline is built
+    once per process.
+    """
+
+    sensor: DomeSensor
+    camera: FisheyeCamera
+    ccd: CCD
+    pipeline_options: dict
+    baseline: np.ndarray
+    background: np.ndarray
+    render_mode: str
+    spp: int
+    variant: str | None
+    table: object
+    keep_frames: bool
+
+    def pipeline(self):
+        """The set's pipeline, built on first use in this process."""
+        pipe = self.__dict__.get("_pipe")
+        if pipe is None:
+            from optitact.pipeline import Pipeline
+
+            pipe = Pipeline(self.sensor, self.camera, baseline=self.baseline, **self.pipeline_options)
+            self.__dict__["_pipe"] = pipe
+        return pipe
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_pipe"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+
+    def __call__(self, forces, seed: int) -> dict:
+        """Render, expose and read one frame of element-local ``forces`` with ``seed``."""
+        from optitact.render import render, spot_pixels
+
+        f = np.asarray(forces, dtype=np.float64)
+        if self.render_mode == "two_stage":
+            radiance = render(self.sensor, f, camera=self.camera, transport="two_stage", table=self.table,
+                              background=self.background)
+        elif self.render_mode == "pixels":
+            radiance = render(self.sensor, f, camera=self.camera, spp=self.spp, seed=seed,
+                              variant=self.variant, pixels=spot_pixels(self.sensor, self.camera, f),
+                              background=self.background)
+        else:
+            radiance = render(self.sensor, f, camera=self.camera, spp=self.spp, seed=seed,
+                              variant=self.variant)
+        frame = self.ccd.expose(radiance, seed=seed)
+        r = self.pipeline().process(frame)
+        out = {"G": r.G, "u": r.u, "contact": r.contact, "saturated": r.saturated}
+        if self.keep_frames:
+            out["frame"] = frame
+        return out
+
+
+def _make_frame(maker: FrameMaker, forces, seed: int) -> dict:
+    return maker(forces, seed)
+
+
+def _distributed(scheduler, maker: FrameMaker, todo, forces, seeds, token: str):
+    """Run frames on a Dask cluster; yield ``(index, readings)`` as they finish."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:  # pragma: no cover - a dependency
+        raise InputError("scheduler= needs dask.distributed (pip install 'dask[distributed]')") from exc
+    own = not isinstance(scheduler, Client)
+    if own and not isinstance(scheduler, str):
+        raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
+                        f"{type(scheduler).__name__}")
+    client = Client(scheduler) if own else scheduler
+    try:
+        [remote] = client.scatter([maker], broadcast=True, hash=False)
+        tag = hashlib.sha256(token.encode()).hexdigest()[:12]
+        futures = {client.submit(_make_frame, remote, forces[i], int(seeds[i]), key=f"optitact-frame-{tag}-{i}",
+                                 retries=3, pure=False): int(i) for i in todo}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
+    finally:
+        if own:
+            client.close()
+
+
 def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor | None = None,
              camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 64,
              seed: int = 0, design: Design | None = None, keep_frames: bool = False,
              variant: str | None = None, pipeline_options: dict | None = None,
              baseline_frames: int = 4, render_mode: str = "two_stage", table=None,
-             progress: bool = True) -> CalibrationSet:
+             scheduler=None, progress: bool = True) -> CalibrationSet:
     """Create or finish a synthetic calibration set (resumable).
 
     Parameters
@@ -265,6 +354,14 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     table : EmissionTable, optional
         ``"two_stage"`` only: the stage-1 table (default: the cached one for
         this sensor and camera, measured on first use, a few minutes).
+    scheduler : str or distributed.Client, optional
+        Run the frames on a Dask distributed cluster: a scheduler address
+        (``"tcp://host:8786"``) or a ``Client``. Each frame is one task that
+        carries its own seed, so the set is identical to a local one; a task
+        whose worker dies is retried elsewhere, and only this process writes
+        the store (readings, then the frame's ``done`` flag), so killed
+        workers lose or duplicate nothing. Without it the frames run here,
+        one after another.
     progress : bool
         Show a progress bar (frames/s, ETA) on stderr.
 
@@ -281,7 +378,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     from tqdm import tqdm
 
     from optitact.pipeline import Pipeline
-    from optitact.render import RenderSettings, render, spot_pixels
+    from optitact.render import RenderSettings, render
 
     frames = integer(frames, "frames", minimum=1)
     spp = integer(spp, "spp", minimum=1)
@@ -290,6 +387,10 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         raise InputError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
     if table is not None and render_mode != "two_stage":
         raise InputError("table is for render_mode='two_stage'")
+    if scheduler is not None and not isinstance(scheduler, str) and \
+            type(scheduler).__name__ != "Client":
+        raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
+                        f"{type(scheduler).__name__}")
     seed = seed_value(seed)
     if seed is None:
         raise InputError("a calibration set needs an integer seed (it is how frames resume)")
@@ -367,33 +468,32 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         group["baseline_radiance"][k] = empty
         group["baseline"][k] = ccd.expose(empty, seed=int(bseeds[k]))
         group["baseline_done"][k] = True
-    baseline = np.asarray(group["baseline"][:])
-    background = np.asarray(group["baseline_radiance"][:], dtype=np.float64).mean(axis=0)
-    pipe = Pipeline(sensor, camera, baseline=baseline, **options)
+    maker = FrameMaker(sensor=sensor, camera=camera, ccd=ccd, pipeline_options=options,
+                       baseline=np.asarray(group["baseline"][:]),
+                       background=np.asarray(group["baseline_radiance"][:], dtype=np.float64).mean(axis=0),
+                       render_mode=render_mode, spp=spp, variant=variant, table=table,
+                       keep_frames=bool(keep_frames))
     done = np.asarray(group["done"][:], dtype=bool)
     seeds = np.asarray(group["seeds"][:])
+    forces = np.asarray(group["forces"][:])
     todo = np.flatnonzero(~done)
+
+    def store(i: int, out: dict) -> None:
+        # Only this process writes: a frame's readings, then its done flag last.
+        for name in ("G", "u", "contact", "saturated"):
+            group[name][i] = out[name]
+        if keep_frames:
+            group["frames"][i] = out["frame"]
+        group["done"][i] = True
+
     with tqdm(total=frames, initial=frames - len(todo), unit="frame", desc="calibration set",
               file=sys.stderr, disable=not progress) as bar:
-        for i in todo:
-            f = np.asarray(group["forces"][i])
-            s = int(seeds[i])
-            if render_mode == "two_stage":
-                radiance = render(sensor, f, camera=camera, transport="two_stage", table=table,
-                                  background=background)
-            elif render_mode == "pixels":
-                radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant,
-                                  pixels=spot_pixels(sensor, camera, f), background=background)
-            else:
-                radiance = render(sensor, f, camera=camera, spp=spp, seed=s, variant=variant)
-            frame = ccd.expose(radiance, seed=s)
-            r = pipe.process(frame)
-            group["G"][i] = r.G
-            group["u"][i] = r.u
-            group["contact"][i] = r.contact
-            group["saturated"][i] = r.saturated
-            if keep_frames:
-                group["frames"][i] = frame
-            group["done"][i] = True
-            bar.update(1)
+        if scheduler is None:
+            for i in todo:
+                store(int(i), maker(forces[i], int(seeds[i])))
+                bar.update(1)
+        else:
+            for i, out in _distributed(scheduler, maker, todo, forces, seeds, str(path)):
+                store(i, out)
+                bar.update(1)
     return CalibrationSet(path)

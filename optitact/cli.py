@@ -7,6 +7,7 @@ on stdout. Bad input is a one-line ``optitact: error: ...`` and exit code 2.
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -137,6 +138,10 @@ def _parser() -> argparse.ArgumentParser:
                            "'default' uses the shipped calibration")
     proc.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
                       help="with --calibration: save a force-field plot of the last frame")
+    proc.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                      help="process the files on a Dask distributed cluster, one task per file "
+                           "(scheduler address); the baseline comes from --baseline or the first "
+                           "frames, and the CSV is the same as a local run's")
     proc.add_argument("--batch", type=_positive_int, default=32,
                       help="frames processed together (default 32)")
 
@@ -168,6 +173,9 @@ def _parser() -> argparse.ArgumentParser:
                           "use, minutes), patches traced as emitters, ~0.05 s/frame, no Monte Carlo "
                           "noise; pixels: path-trace only the pixels the pipeline reads; full: "
                           "path-trace whole frames (--spp applies to path tracing and the baseline)")
+    gen.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                     help="run the frames on a Dask distributed cluster (scheduler address, e.g. "
+                          "tcp://host:8786); the set is identical to a local one (default: here)")
     gen.add_argument("--width", type=_positive_int, default=640, help="image width (default 640)")
     gen.add_argument("--height", type=_positive_int, default=480,
                      help="image height (default 480)")
@@ -497,6 +505,13 @@ def _process(args) -> int:
         yield first
         yield from frames
 
+    if args.scheduler is not None:
+        if n_base and pipe.baseline is None:
+            base = [f for _, f in itertools.islice(stream(), n_base)]
+            if len(base) < n_base:
+                raise ValueError(f"the frames end after {len(base)}, before the {n_base} baseline frames")
+            pipe = pipe.with_baseline(np.stack(base))
+        return _process_distributed(args, files, pipe, cal, camera, total)
     t0 = time.perf_counter()
     held: list[tuple[str, np.ndarray]] = []
     last: dict = {}
@@ -545,6 +560,58 @@ def _process(args) -> int:
     return 0
 
 
+def _read_file(pipe, cal, path, batch: int, shape) -> list:
+    """Readings (and forces) of every frame of one file: a task of ``process --scheduler``."""
+    from .frames import iter_frames
+
+    out, held = [], []
+
+    def flush():
+        stack = np.stack([f for _, f in held])
+        r = pipe.process(stack)
+        f = cal.forces(r) if cal is not None else (None, None)
+        out.append(([n for n, _ in held], r, *f))
+        held.clear()
+
+    for name, frame in iter_frames([path]):
+        if frame.shape != shape:
+            raise ValueError(f"{name}: expected a {shape[0]}x{shape[1]} frame for this camera, "
+                             f"got {frame.shape}")
+        held.append((name, frame))
+        if len(held) >= batch:
+            flush()
+    if held:
+        flush()
+    return out
+
+
+def _process_distributed(args, files, pipe, cal, camera, total) -> int:
+    """``optitact process --scheduler``: one task per file on a Dask cluster, rows written here in order."""
+    from distributed import Client
+    from tqdm import tqdm
+
+    from .io import ReadingsWriter
+
+    t0 = time.perf_counter()
+    with Client(args.scheduler) as client, ReadingsWriter(args.out, forces=cal is not None) as out, \
+            tqdm(total=total, unit="frame", desc="process", file=sys.stderr) as bar:
+        [p] = client.scatter([pipe], broadcast=True, hash=False)
+        futures = [client.submit(_read_file, p, cal, f, args.batch, camera.shape, retries=3, pure=False)
+                   for f in files]
+        for fut in futures:  # in file order: the CSV is the same as a local run's
+            for names, r, forces, clamped in fut.result():
+                if cal is None:
+                    out.write(r, names)
+                else:
+                    out.write(r, names, forces, clamped)
+                bar.update(len(names))
+        n = out.frames
+    seconds = time.perf_counter() - t0
+    print(f"optitact: wrote {'forces' if cal else 'readings'} of {n} frames to {args.out} "
+          f"({n / max(seconds, 1e-9):.0f} frames/s on the cluster, including reading)", file=sys.stderr)
+    return 0
+
+
 def _calibrate(args) -> int:
     from .calib import Design, fit, generate
 
@@ -553,7 +620,7 @@ def _calibrate(args) -> int:
         cs = generate(args.out, frames=args.frames, camera=FisheyeCamera(width=args.width,
                                                                         height=args.height),
                       spp=args.spp, seed=args.seed, design=design, keep_frames=args.keep_frames,
-                      variant=args.variant, render_mode=args.render_mode)
+                      variant=args.variant, render_mode=args.render_mode, scheduler=args.scheduler)
         print(f"optitact: calibration set {args.out}: {int(cs.done.sum())} of {len(cs)} frames "
               f"done", file=sys.stderr)
         print(args.out)
