@@ -63,7 +63,7 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
                  targets=(0.02, 0.01, 0.005), n_subs=(4, 8), reference_spp: int = 4096,
                  width: int = 640, height: int = 480, repeats: int = 1, cases=None,
                  target_pct_fs: float = 0.5, variant: str | None = None, seed: int = 0,
-                 plot=None, progress: bool = True) -> dict:
+                 plot=None, progress: bool = True, table=None) -> dict:
     """Render time against the error it leaves, per mode and setting, on fixed load cases.
 
     Parameters
@@ -100,6 +100,9 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
         case (or the last case).
     progress : bool
         Show a progress bar on stderr.
+    table : EmissionTable, optional
+        The two-stage table (default: the cached one for this camera,
+        measured on first use).
 
     Returns
     -------
@@ -161,7 +164,8 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     table = None
     if "two_stage" in modes:
         t0 = time.perf_counter()
-        table = emission_table(sensor, camera, variant=variant, progress=progress)
+        if table is None:
+            table = emission_table(sensor, camera, variant=variant, progress=progress)
         one_time["two_stage_table_s"] = round(time.perf_counter() - t0, 2)
         one_time["two_stage_table_build_s"] = table.meta.get("seconds")
     settings = {"brute": spps, "pixels": spps, "adaptive": targets, "two_stage": n_subs}
