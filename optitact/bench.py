@@ -405,7 +405,8 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
 def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                    test_spp: int | None = None, size: tuple[int, int] = (640, 480),
                    calibration_set=None, test_set=None, seed: int = 0,
-                   variant: str | None = None, plot=None, contact_min_n: float = 0.01) -> dict:
+                   variant: str | None = None, plot=None, contact_min_n: float = 0.01,
+                   render_mode: str = "two_stage", test_render_mode: str = "pixels") -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -432,6 +433,10 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     contact_min_n : float
         A true normal force at or above this (N) should read as contact;
         below it, as none (for ``contact_flag_error_rate``).
+    render_mode, test_render_mode : str
+        How the calibration and the held-out frames are rendered (see
+        :func:`optitact.calib.generate`); by default the calibration comes
+        from the two-stage light transport and is tested on path-traced frames.
 
     Returns
     -------
@@ -451,20 +456,20 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                            height=integer(height, "height", minimum=2))
     sets = cache_dir() / "sets"
 
-    def get(given, n, s, tag, n_spp):
+    def get(given, n, s, tag, n_spp, mode):
         if given is not None:
             return CalibrationSet(given)
-        path = sets / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}.zarr"
+        path = sets / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}-{mode}.zarr"
         print(f"optitact: bench accuracy: {tag} set {path}", file=sys.stderr)
         if path.exists():
             cached = CalibrationSet(path)
             if cached.complete:  # made earlier (possibly by an older version): use as is
                 return cached
-        return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant)
+        return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant, render_mode=mode)
 
     test_spp = spp if test_spp is None else integer(test_spp, "test_spp", minimum=1)
-    cs = get(calibration_set, frames, seed, "calibration", spp)
-    ts = get(test_set, test_frames, seed + 1000, "test", test_spp)
+    cs = get(calibration_set, frames, seed, "calibration", spp, render_mode)
+    ts = get(test_set, test_frames, seed + 1000, "test", test_spp, test_render_mode)
     if ts.attrs["seed"] == cs.attrs["seed"]:
         raise ValueError("the held-out set must have another seed than the calibration set")
     truth = ts.forces()
@@ -477,7 +482,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                                      "seed": cs.attrs["seed"],
                                      "render_mode": cs.attrs.get("render_mode", "full")},
                  "test_set": {"path": str(ts.path), "frames": int(ts.done.sum()),
-                              "seed": ts.attrs["seed"], "samples": int(truth[..., 0].size)},
+                              "seed": ts.attrs["seed"], "samples": int(truth[..., 0].size),
+                              "render_mode": ts.attrs.get("render_mode", "full")},
                  "full_scale_n": {"fx": fs[0], "fy": fs[1], "fz": fs[2]},
                  "ccd": ts.attrs["ccd"], "models": {}}
     estimates = {}

@@ -270,6 +270,10 @@ def _parser() -> argparse.ArgumentParser:
                       help="samples per pixel of the held-out set (default: --spp); Monte Carlo "
                            "noise is the simulation's, not the sensor's")
     bacc.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
+    bacc.add_argument("--render-mode", choices=("two_stage", "pixels", "full"), default="two_stage",
+                      help="how the calibration frames are rendered (default two_stage)")
+    bacc.add_argument("--test-render-mode", choices=("two_stage", "pixels", "full"), default="pixels",
+                      help="how the held-out frames are rendered (default pixels: path-traced)")
     bacc.add_argument("--calibration-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this calibration set instead of generating one")
     bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
@@ -654,7 +658,8 @@ def _bench(args) -> int:
                                 test_spp=args.test_spp, size=_size(args.size),
                                 calibration_set=args.calibration_set,
                                 test_set=args.test_set, seed=args.seed, variant=args.variant,
-                                plot=args.plot)
+                                plot=args.plot, render_mode=args.render_mode,
+                                test_render_mode=args.test_render_mode)
     elif args.bench == "pipeline":
         result = bench_pipeline([_size(s) for s in args.size], n_frames=args.frames,
                                 repeats=args.repeats, spp=args.spp, seed=args.seed,
