@@ -192,7 +192,7 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
                     elif mode == "pixels":
                         kw.update(spp=value, pixels=mask, background=noload)
                     elif mode == "adaptive":
-                        kw.update(spp=SPP_MIN_ADAPTIVE, pixels=mask, background=noload,
+                        kw.update(spp=min(SPP_MIN_ADAPTIVE, reference_spp), pixels=mask, background=noload,
                                   target_error=value, max_spp=reference_spp)
                     else:
                         kw.update(transport="two_stage", n_sub=value, table=table, background=noload)

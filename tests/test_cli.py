@@ -148,15 +148,16 @@ def test_indenter_load_is_centred_and_friction_limited():
 def test_bench_render_json(capsys, tmp_path):
     plot = tmp_path / "pareto.png"
     assert main(["bench", "render", "--spp", "1", "4", "--reference-spp", "8", "--width", "64",
-                 "--height", "48", "--cases", "1-heavy", "41", "--plot", str(plot), "--json"]) == 0
+                 "--height", "48", "--cases", "1-heavy", "41", "--modes", "brute", "pixels", "adaptive",
+                 "--targets", "0.3", "--plot", str(plot), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["size"] == "64x48" and out["reference_spp"] == 8
-    assert len(out["rows"]) == 2 * 2 * 2  # cases x modes x spp
+    assert len(out["rows"]) == 2 * (2 * 2 + 1)  # cases x (2 modes x 2 spp + adaptive x 1 target)
     for row in out["rows"]:
         assert row["seconds"] > 0 and row["g_rel_error"] >= 0 and row["u_error_mm"] >= 0
         assert "force_error_pct_fs" not in row  # the shipped calibration is for 640x480
     for case in ("1-heavy", "41"):
-        errs = {r["spp"]: r["g_rel_error"] for r in out["rows"]
+        errs = {r["setting"]: r["g_rel_error"] for r in out["rows"]
                 if r["case"] == case and r["mode"] == "pixels"}
         assert errs[4] < errs[1]  # more samples, less error against the reference
         assert out["pareto"][case]
