@@ -285,7 +285,55 @@ def _parser() -> argparse.ArgumentParser:
                       help="save estimated vs true forces of both models as PNG")
     bacc.add_argument("--json", action="store_true",
                       help="print only the JSON object (the default output is JSON too)")
+    bstab = bsub.add_parser(
+        "stability", help="stress cases of every stage and the noise sweep against the Cramer-Rao bound",
+        description="Run the generated stress cases (frames, readings at the edge, calibration files "
+                    "and fits, accumulation, renderer inputs) and the Monte Carlo noise sweep of G "
+                    "and u against the Cramer-Rao bound. Output: one JSON object with cases, "
+                    "failures, noise_sweep and nominal.")
+    bstab.add_argument("--cases", type=_positive_int, default=10000,
+                       help="generated stress cases (default 10000)")
+    bstab.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    bstab.add_argument("--json", action="store_true",
+                       help="print only the JSON object (the default output is JSON too)")
+    exp = sub.add_parser(
+        "experiment", help="simulated experiments with the other tactile sensors and the robotic finger",
+        description="Run one simulated experiment and print its figures as one JSON object: "
+                    + "; ".join(f"{k}: {v[1]}" for k, v in EXPERIMENTS.items())
+                    + ". Small sizes by default (seconds); --full runs the published sizes.")
+    exp.add_argument("name", choices=sorted(EXPERIMENTS), help="which experiment")
+    exp.add_argument("--full", action="store_true", help="full size (minutes) instead of a quick run")
+    exp.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    exp.add_argument("--plot", type=Path, default=None, metavar="PLOT.png", help="save the figures as PNG")
+    exp.add_argument("--json", action="store_true",
+                     help="print only the JSON object (the default output is JSON too)")
     return parser
+
+
+#: ``optitact experiment NAME``: module (with ``experiment`` and ``plot_experiment``) and what it does.
+EXPERIMENTS = {
+    "tracing": ("optitact.taxels.tracing",
+                "piezoresistive 16x16 finger pad, active tracing of pipes, diameter from the width"),
+    "palpation": ("optitact.taxels.palpation",
+                  "8x8 thread-electrode arrays on a gripper, DTW k-NN recognition of palpated objects"),
+    "wire": ("optitact.taxels.optopad", "5x5 optoelectronic pad, wire shape and diameter"),
+    "fingertip": ("optitact.taxels.fingertip",
+                  "non-coplanar 25-unit fingertip, 3-D force decoupling and object recognition"),
+    "finger": ("optitact.finger", "the dome sensor on a 3-DOF finger: friction, slip, contour tracing"),
+}
+
+
+def _experiment(args) -> int:
+    import importlib
+    import json
+
+    module = importlib.import_module(EXPERIMENTS[args.name][0])
+    result = module.experiment(seed=args.seed, full=args.full, progress=True)
+    if args.plot is not None:
+        module.plot_experiment(result, args.plot)
+        result = {**result, "plot": str(args.plot)}
+    print(json.dumps(result))
+    return 0
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -651,6 +699,11 @@ def _bench(args) -> int:
 
     from .bench import bench_pipeline, bench_render
 
+    if args.bench == "stability":
+        from .stability import run_stability
+
+        print(json.dumps(run_stability(n_cases=args.cases, seed=args.seed, progress=True)))
+        return 0
     if args.bench == "accuracy":
         from .bench import bench_accuracy
 
@@ -679,7 +732,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         commands = {"demo": _demo, "render": _render, "process": _process,
-                    "calibrate": _calibrate, "bench": _bench}
+                    "calibrate": _calibrate, "bench": _bench, "experiment": _experiment}
         return commands[args.command](args)
     except (ValueError, TypeError, OSError) as exc:
         print(f"optitact: error: {exc}", file=sys.stderr)
