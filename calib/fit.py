@@ -59,6 +59,12 @@ SCHEMA = "optitact.calibration"
 SCHEMA_VERSION = 1
 #: Largest calibration file read (bytes); a calibration of 41 elements is ~20 kB.
 MAX_FILE_BYTES = 5_000_000
+#: Smallest relative spread (``ptp / max |x|``) of G, u and Fz a fit accepts; a narrower range
+#: leaves the cubic g(G) and the shear curve ill-conditioned.
+MIN_RELATIVE_SPREAD = 1e-6
+#: Pipeline options a calibration file may hold.
+PIPELINE_KEYS = ("method", "filter", "filter_size", "noise_sigma", "k", "min_pixels", "saturation",
+                 "radius", "grid_mm")
 _G_TERMS = 4
 _F_TERMS = {"ohka": 2, "coupled": 2}
 
@@ -178,9 +184,14 @@ class Calibration:
 
         Raises
         ------
+        TypeError
+            ``readings`` are not stack readings, or ``forces`` is not a real
+            numeric array.
         InputError
-            Unknown model; fewer than 8 usable samples for an element, no
-            spread in G or in u, or non-finite data.
+            Unknown model; fewer than 8 usable samples for an element, fewer
+            than 4 distinct G values (duplicate points), no spread (or a
+            relative spread below ``MIN_RELATIVE_SPREAD``: ill-conditioned) in
+            G, u or Fz, no shear at all, or non-finite data.
         ShapeError
             ``forces`` does not match the readings.
         """
@@ -190,7 +201,13 @@ class Calibration:
             raise InputError(f"model must be one of {MODELS}, got {model!r}")
         if not isinstance(readings, Readings) or not readings.is_stack:
             raise TypeError("readings must be stack Readings (T, E) from Pipeline.process(stack)")
-        f = np.asarray(forces, dtype=np.float64)
+        try:
+            f = np.asarray(forces)
+        except ValueError as exc:
+            raise TypeError(f"forces must be an array (T, E, 3); could not make one ({exc})") from None
+        if f.dtype.kind not in "iuf":
+            raise TypeError(f"forces must be a real numeric array (N), got dtype {f.dtype}")
+        f = f.astype(np.float64)
         t_n, n_el = readings.G.shape
         if f.shape != (t_n, n_el, 3):
             raise ShapeError(f"forces must have shape {(t_n, n_el, 3)} to match the readings, "
@@ -199,6 +216,7 @@ class Calibration:
             raise InputError("forces must be finite")
         if n_el != sensor.n_elements:
             raise ShapeError(f"readings have {n_el} elements, the sensor {sensor.n_elements}")
+        _check_readings(readings)
         g_c = np.zeros((n_el, _G_TERMS))
         gu = np.zeros((n_el, 2))
         f_c = np.zeros((n_el, 2))
@@ -215,12 +233,22 @@ class Calibration:
             if np.ptp(G) <= 0 or np.ptp(u) <= 0:
                 raise InputError(f"element {e}: the readings do not vary (constant G or u); "
                                  f"the loads must span a range")
+            n_distinct = len(np.unique(G))
+            if n_distinct < _G_TERMS:
+                raise InputError(f"element {e}: {n_distinct} distinct G values (duplicate points); "
+                                 f"the cubic g(G) needs at least {_G_TERMS}")
+            _check_spread(G, f"element {e}: G")
+            _check_spread(u, f"element {e}: u")
+            _check_spread(fe[:, 2], f"element {e}: the normal forces Fz")
+            if not np.any(fe[:, :2]):
+                raise InputError(f"element {e}: no sample has shear (Fx = Fy = 0 throughout); the "
+                                 f"shear curve needs loads with shear")
             g_scale[e] = G.max()
             s = G / g_scale[e]
             g_max[e] = G.max()
             radius = np.hypot(u[:, 0], u[:, 1])
             u_max[e] = radius.max()
-            u_scale[e] = max(u_max[e], 1e-12)
+            u_scale[e] = u_max[e]
             design = _g_design(s)
             if model == "coupled":  # + the brightness gradient across the element
                 design = np.concatenate([design, s[:, None] * u / u_scale[e]], axis=1)
@@ -240,9 +268,16 @@ class Calibration:
                 def resid(p, u=u, fzp=fzp, target=fe[:, :2]):
                     return (_shear_coupled(u, fzp, p) - target).reshape(-1)
 
+                # Start from the linear problem u Fz = F_t (a + b sqrt(Fz)) (exact on exact data),
+                # then minimise the shear residuals themselves.
+                ft = fe[:, :2].reshape(-1)
+                lin = np.stack([ft, ft * np.repeat(np.sqrt(fzp), 2)], axis=-1)
+                x0 = lsq_linear(lin, (u * fzp[:, None]).reshape(-1), bounds=([1e-6, 0.0], np.inf),
+                                method="bvls").x
                 h0 = max(sensor.lever_arm, 1e-3)
-                sol2 = least_squares(resid, x0=[h0, 0.1 * h0], bounds=([1e-6, 0.0], [np.inf, np.inf]),
-                                     x_scale=[h0, h0])
+                scale = [max(x0[0], 1e-6), max(x0[1], 1e-3 * x0[0], 1e-6)] if x0[0] > 1e-6 else [h0, h0]
+                sol2 = least_squares(resid, x0=x0, bounds=([1e-6, 0.0], [np.inf, np.inf]), x_scale=scale,
+                                     ftol=1e-12, xtol=1e-12, gtol=1e-12)
                 f_c[e] = sol2.x
                 shear = _shear_coupled(u, fzp, sol2.x)
             res["fz"][e] = math.sqrt(np.mean((fz_hat - fe[:, 2]) ** 2))
@@ -287,6 +322,7 @@ class Calibration:
         if readings.n_elements != len(self.g):
             raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
                              f"{len(self.g)}")
+        _check_readings(readings)
         G = np.minimum(readings.G, self.g_max)
         radius = np.hypot(readings.u[..., 0], readings.u[..., 1])
         over_u = radius > self.u_max
@@ -351,24 +387,57 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d) -> Calibration:
-        """Build from :meth:`to_dict` output, validating every field."""
+        """Build from :meth:`to_dict` output, validating every field.
+
+        Raises
+        ------
+        InputError
+            Wrong schema or version, a missing or malformed field, parameters
+            outside what a fit gives (negative g coefficients, non-positive
+            scales or ranges, a coupled shear curve that divides by zero).
+        CalibrationMismatchError
+            The fingerprint does not match the sensor, camera and pipeline.
+        """
         if not isinstance(d, dict):
             raise InputError(f"a calibration must be a JSON object, got {type(d).__name__}")
         if d.get("schema") != SCHEMA:
             raise InputError(f"not an optitact calibration (schema {d.get('schema')!r})")
-        if d.get("schema_version") != SCHEMA_VERSION:
+        version = d.get("schema_version")
+        if isinstance(version, bool) or not isinstance(version, int) or version != SCHEMA_VERSION:
             raise InputError(f"calibration schema version {d.get('schema_version')!r} is not "
                              f"supported (this optitact reads {SCHEMA_VERSION})")
         for key in ("model", "sensor", "camera", "pipeline", "elements", "fingerprint"):
             if key not in d:
                 raise InputError(f"calibration is missing {key!r}")
         model = d["model"]
-        if model not in MODELS:
+        if not isinstance(model, str) or model not in MODELS:
             raise InputError(f"calibration model must be one of {MODELS}, got {model!r}")
-        sensor = DomeSensor.from_dict(d["sensor"])
-        camera = FisheyeCamera.from_dict(d["camera"])
+        if not isinstance(d["fingerprint"], str):
+            raise InputError(f"calibration 'fingerprint' must be a string, got {d['fingerprint']!r}")
+        try:
+            sensor = DomeSensor.from_dict(d["sensor"])
+        except (TypeError, ValueError, ArithmeticError) as exc:
+            raise InputError(f"calibration 'sensor' is not a valid sensor: {exc}") from None
+        try:
+            camera = FisheyeCamera.from_dict(d["camera"])
+        except (TypeError, ValueError, ArithmeticError) as exc:
+            raise InputError(f"calibration 'camera' is not a valid camera: {exc}") from None
         if not isinstance(d["pipeline"], dict):
             raise InputError("calibration 'pipeline' must be an object of Pipeline options")
+        unknown = sorted(str(k) for k in d["pipeline"] if k not in PIPELINE_KEYS)
+        if unknown:
+            raise InputError(f"calibration 'pipeline' has unknown option(s) {unknown}; valid: "
+                             f"{list(PIPELINE_KEYS)}")
+        for key in ("residuals_n", "provenance"):
+            if not isinstance(d.get(key, {}), dict):
+                raise InputError(f"calibration {key!r} must be an object, got "
+                                 f"{type(d[key]).__name__}")
+        residuals = {}
+        for key, value in d.get("residuals_n", {}).items():
+            try:
+                residuals[key] = np.array(value, dtype=np.float64)
+            except (TypeError, ValueError, ArithmeticError):
+                raise InputError(f"calibration residuals_n[{key!r}] must hold numbers") from None
         n = sensor.n_elements
         el = d["elements"]
         if not isinstance(el, dict):
@@ -379,7 +448,7 @@ class Calibration:
                 raise InputError(f"calibration elements are missing {name!r}")
             try:
                 a = np.array(el[name], dtype=np.float64)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, ArithmeticError):  # ints beyond float64 overflow
                 raise InputError(f"calibration elements[{name!r}] must hold numbers") from None
             if a.shape != shape:
                 raise InputError(f"calibration elements[{name!r}] must have shape {shape}, "
@@ -392,11 +461,30 @@ class Calibration:
         cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, _G_TERMS)),
                   arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
                   arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
-                  {k: np.asarray(v) for k, v in dict(d.get("residuals_n", {})).items()},
-                  dict(d.get("provenance", {})))
+                  residuals, dict(d.get("provenance", {})))
         if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
             raise InputError("calibration scales must be > 0")
-        cal.pipeline()  # the pipeline options must be valid
+        if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
+            raise InputError("calibration ranges g_max and u_max must be > 0")
+        if np.any(cal.g < 0):
+            raise InputError("calibration g coefficients must be >= 0 (g increases with G)")
+        if model == "coupled" and (np.any(cal.f[:, 0] <= 0) or np.any(cal.f[:, 1] < 0)):
+            raise InputError("coupled calibration shear parameters must have a > 0 and b >= 0")
+        if model == "ohka" and np.any(cal.f < 0):
+            raise InputError("ohka calibration shear coefficients must be >= 0")
+        with np.errstate(all="ignore"):  # the curves must stay finite over the fitted range
+            s_top, t_top = cal.g_max / cal.g_scale, cal.u_max / cal.u_scale
+            fz_top = _g_design(s_top) @ np.ones(_G_TERMS) * np.abs(cal.g).max(axis=1) \
+                + s_top * t_top * np.abs(cal.gu).sum(axis=1)
+            shear_top = (cal.u_max * fz_top / cal.f[:, 0] if model == "coupled"
+                         else cal.f[:, 0] * t_top + cal.f[:, 1] * t_top**3)
+        if not (np.isfinite(fz_top).all() and np.isfinite(shear_top).all()):
+            raise InputError("calibration curves overflow float64 within their fitted range (scales, "
+                             "ranges or coefficients out of proportion)")
+        try:
+            cal.pipeline()  # the pipeline options must be valid
+        except (TypeError, ValueError, ArithmeticError) as exc:
+            raise InputError(f"calibration 'pipeline' options are not valid: {exc}") from None
         if cal.fingerprint != d["fingerprint"]:
             raise CalibrationMismatchError(
                 f"calibration fingerprint {d['fingerprint']!r} does not match its own sensor, "
@@ -423,13 +511,45 @@ class Calibration:
         if size > MAX_FILE_BYTES:
             raise InputError(f"{path}: {size} bytes is too large for a calibration "
                              f"(at most {MAX_FILE_BYTES})")
+        with path.open("rb") as fh:
+            data = fh.read(MAX_FILE_BYTES + 1)  # the file may have grown since stat()
+        if len(data) > MAX_FILE_BYTES:
+            raise InputError(f"{path} is too large for a calibration (more than {MAX_FILE_BYTES} bytes)")
         try:
-            d = json.loads(path.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{path} is not a JSON calibration ({exc})") from None
+            d = json.loads(data.decode("utf-8"), parse_constant=_refuse_constant)
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            # JSONDecodeError and numbers too long to convert are ValueErrors; absurd nesting
+            # exhausts the parser's recursion
+            raise InputError(f"{path} is not a JSON calibration ({type(exc).__name__}: "
+                             f"{str(exc)[:200]})") from None
         cal = cls.from_dict(d)
         cal.check(sensor, camera)
         return cal
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not valid JSON (calibration numbers must be finite)")
+
+
+def _check_spread(x: np.ndarray, what: str) -> None:
+    """InputError unless ``x`` spans a range wider than ``MIN_RELATIVE_SPREAD`` of its magnitude."""
+    spread, scale = float(np.ptp(x)), float(np.max(np.abs(x)))
+    if not spread > MIN_RELATIVE_SPREAD * scale:
+        raise InputError(f"{what} spans {spread:.3g} around a magnitude of {scale:.3g} (relative "
+                         f"{spread / scale if scale else 0.0:.3g}); a fit needs a relative spread "
+                         f"above {MIN_RELATIVE_SPREAD:g} (an ill-conditioned range)")
+
+
+def _check_readings(readings: Readings) -> None:
+    """InputError for non-finite readings or a negative G."""
+    for name in ("G", "u"):
+        arr = np.asarray(getattr(readings, name))
+        if arr.dtype.kind not in "iuf":
+            raise TypeError(f"readings.{name} must be real numbers, got dtype {arr.dtype}")
+        if not np.isfinite(arr).all():
+            raise InputError(f"readings.{name} must be finite, got {arr[~np.isfinite(arr)][0]}")
+    if np.any(np.asarray(readings.G) < 0):
+        raise InputError(f"readings.G must be >= 0, got {np.min(readings.G)}")
 
 
 def fit(calibration_set, *, model: str = "coupled") -> Calibration:

@@ -16,9 +16,13 @@ def real_array(value, name: str) -> np.ndarray:
     ------
     TypeError
         If ``value`` is not a real numeric array (bool, complex, object and
-        string arrays are refused).
+        string arrays are refused), or nested sequences of unequal lengths.
     """
-    arr = np.asarray(value)
+    try:
+        arr = np.asarray(value)
+    except ValueError as exc:  # nested sequences of unequal lengths
+        raise TypeError(f"{name} must be a real numeric array; could not make one from the "
+                        f"nested sequences given ({exc})") from None
     if arr.dtype.kind not in "iuf":
         raise TypeError(
             f"{name} must be a real numeric array, got dtype {arr.dtype}"

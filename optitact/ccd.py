@@ -20,6 +20,9 @@ from .errors import InputError, ShapeError
 __all__ = ["CCD"]
 
 _BITS = (8, 10, 12, 16)
+#: Largest full well (electrons): numpy's Poisson sampler takes means up to about 9e18, and
+#: :meth:`CCD.expose` draws at most ``2 full_well + 1000``.
+MAX_FULL_WELL = 1e18
 
 
 @dataclass(frozen=True)
@@ -55,7 +58,10 @@ class CCD:
         If a field has the wrong kind (a bool, a string, a float ``bits``...).
     InputError
         If a field is not finite, not positive, ``bits`` is not one of
-        8, 10, 12, 16, or ``dark_offset`` lies outside ``[0, 2**bits - 1]``.
+        8, 10, 12, 16, ``dark_offset`` lies outside ``[0, 2**bits - 1]``,
+        ``full_well`` exceeds ``MAX_FULL_WELL`` (1e18), or the conversion
+        gain, the largest DN or the DN variance of the model would overflow
+        float64.
 
     See Also
     --------
@@ -120,6 +126,18 @@ class CCD:
                 f"dark_offset must be in [0, {top}] DN for bits={bits}, got {self.dark_offset!r}"
             )
         gain = None if self.gain is None else positive(self.gain, "gain")
+        if full_well > MAX_FULL_WELL:
+            raise InputError(f"full_well must be at most {MAX_FULL_WELL:g} electrons, got {self.full_well!r}")
+        g = (top - dark_offset) / full_well if gain is None else gain
+        with np.errstate(over="ignore"):
+            g64 = np.float64(g)
+            extreme = (g64, g64 * (full_well + 10.0 * read_noise) + dark_offset,
+                       g64 * g64 * (full_well + np.float64(read_noise) ** 2))
+        if not all(np.isfinite(v) for v in extreme):
+            raise InputError(
+                f"gain {g!r} DN/electron with full_well={full_well!r} and read_noise={read_noise!r} "
+                f"overflows float64 (the largest DN or its variance); use a smaller gain or full well"
+            )
         # Store plain Python numbers so the config compares, hashes and
         # serialises the same whatever numeric types came in.
         for name, value in (

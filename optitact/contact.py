@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._validate import finite, real_array
-from .errors import ShapeError
+from .errors import InputError, ShapeError
 from .sensor import DomeSensor
 
 __all__ = ["Contacts", "contact_patches", "cone_loads"]
@@ -23,6 +23,9 @@ __all__ = ["Contacts", "contact_patches", "cone_loads"]
 #: Fraction of the support polygon the centre of pressure may reach before the
 #: columnar feeler counts as tipped (the load distribution stops following shear).
 TIP_MARGIN = 0.95
+#: Largest force component (N) accepted: far beyond any tactile load (a unit mix-up, mN for N,
+#: stays well inside), and small enough that the contact arithmetic cannot overflow.
+MAX_FORCE_N = 1e6
 
 
 @dataclass(frozen=True)
@@ -79,14 +82,31 @@ class Contacts:
 
 
 def check_forces(forces, sensor: DomeSensor, name: str = "forces") -> np.ndarray:
-    """Validate element-local forces: a finite real array of shape (N, 3)."""
+    """Validate element-local forces: a finite real array of shape (N, 3), within ``MAX_FORCE_N``.
+
+    Raises
+    ------
+    TypeError
+        For a bool, complex, object or string array, or nested sequences
+        that do not form an array.
+    ShapeError
+        If the shape is not ``(n_elements, 3)``.
+    InputError
+        For NaN, infinity, or a component beyond ``MAX_FORCE_N`` (1e6 N) in
+        magnitude.
+    """
     arr = real_array(forces, name)
     if arr.shape != (sensor.n_elements, 3):
         raise ShapeError(
             f"{name} must have shape ({sensor.n_elements}, 3) (Fx, Fy, Fz per element, N), "
             f"got {arr.shape}"
         )
-    return finite(arr, name)
+    finite(arr, name)
+    if arr.size and np.abs(arr).max() > MAX_FORCE_N:
+        bad = tuple(int(i) for i in np.argwhere(np.abs(arr) > MAX_FORCE_N)[0])
+        raise InputError(f"{name} must be at most {MAX_FORCE_N:g} N in magnitude (check the units), "
+                         f"got {float(arr[bad])!r} at index {bad}")
+    return arr
 
 
 def _support_radius(sensor: DomeSensor, direction: np.ndarray) -> np.ndarray:
@@ -179,12 +199,15 @@ def cone_loads(sensor: DomeSensor, forces) -> tuple[np.ndarray, np.ndarray]:
     rho = sensor.cone_circle_radius
     unit = sensor.cone_offsets / rho  # (K, 2)
 
+    # c = h F_t / F_z, capped at the tip limit; compared as h |F_t| > limit F_z so that a
+    # vanishing F_z (down to subnormal) cannot overflow the ratio.
+    ft = np.hypot(f[:, 0], f[:, 1])
+    limit = TIP_MARGIN * _support_radius(sensor, np.arctan2(f[:, 1], f[:, 0]))
+    tipped = loaded & (sensor.lever_arm * ft > limit * np.where(loaded, fz, 0.0))
     c = np.zeros((n, 2))
-    c[loaded] = sensor.lever_arm * f[loaded, :2] / fz[loaded, None]
-    mag = np.linalg.norm(c, axis=1)
-    limit = TIP_MARGIN * _support_radius(sensor, np.arctan2(c[:, 1], c[:, 0]))
-    tipped = loaded & (mag > limit)
-    c[tipped] *= (limit[tipped] / mag[tipped])[:, None]
+    free = loaded & ~tipped
+    c[free] = sensor.lever_arm * f[free, :2] / fz[free, None]
+    c[tipped] = f[tipped, :2] / ft[tipped, None] * limit[tipped, None]  # |f / ft| <= 1
 
     loads = fz[:, None] * _pressure_weights(c / rho, unit)
     loads[~loaded] = 0.0
@@ -214,9 +237,10 @@ def contact_patches(sensor: DomeSensor, forces) -> Contacts:
     capped at the cone's base area ``pi r_base^2`` (fully flattened:
     ``saturated``). The patches slide rigidly along the shear by
     ``s = F_t / \sum_j k_j`` with Mindlin's tangential stiffness of a circular
-    contact ``k_j = 8 G^* a_j``, ``G^* = G / (2 - \nu)``. Patch centres are the
-    cone offsets plus the slide, mapped onto the outer surface with
-    :meth:`DomeSensor.dome_point`.
+    contact ``k_j = 8 G^* a_j``, ``G^* = G / (2 - \nu)``, capped at half a great
+    circle (``pi R``; only a tipped feeler under a vanishing normal load gets
+    there). Patch centres are the cone offsets plus the slide, mapped onto
+    the outer surface with :meth:`DomeSensor.dome_point`.
 
     Examples
     --------
@@ -239,6 +263,11 @@ def contact_patches(sensor: DomeSensor, forces) -> Contacts:
     slide = np.zeros((sensor.n_elements, 2))
     touching = stiffness > 0
     slide[touching] = f[touching, :2] / stiffness[touching, None]
+    # Half a great circle is as far as geodesic coordinates reach: only a feeler far outside the
+    # model (a shear on a vanishing normal load, which tips it) slides that far; capped there.
+    mag = np.hypot(slide[:, 0], slide[:, 1])
+    far = mag > np.pi * sensor.outer_radius
+    slide[far] *= (np.pi * sensor.outer_radius / mag[far])[:, None]
 
     offsets = sensor.cone_offsets[None, :, :] + slide[:, None, :]
     element = np.broadcast_to(np.arange(sensor.n_elements)[:, None], radii.shape)

@@ -142,7 +142,8 @@ class ReadingsWriter:
     """Append readings (and estimated forces) to a CSV file, one row per frame and element.
 
     Columns: ``frame, source, element, G, ux, uy, contact, saturated`` (G in
-    grey level x mm^2, u in mm, flags as 0/1), and with ``forces=True`` also
+    grey level x mm^2, u in mm, flags as 0/1; numbers written with the
+    shortest digits that read back to the same float64), and with ``forces=True`` also
     ``fx, fy, fz`` (element-local, N) and ``clamped`` (the calibration
     clamped the reading to its fitted range). Use as a context manager.
     """
@@ -168,13 +169,18 @@ class ReadingsWriter:
                 raise ValueError("this writer has force columns: pass forces and clamped")
             forces = np.asarray(forces).reshape(len(r), r.n_elements, 3)
             clamped = np.asarray(clamped).reshape(len(r), r.n_elements)
-        e = np.arange(r.n_elements)
+        # repr of a Python float is the shortest string that reads back to the same float64, so
+        # sums over the file (10^6 rows and more) equal sums over the readings bit for bit
+        g, u = r.G.tolist(), r.u.tolist()
+        contact, saturated = r.contact.tolist(), r.saturated.tolist()
+        if self.with_forces:
+            forces, clamped = forces.astype(np.float64).tolist(), clamped.tolist()
         for k, src in enumerate(sources):
-            for i in e:
-                row = [self.frames, src, int(i), f"{r.G[k, i]:.9g}", f"{r.u[k, i, 0]:.9g}",
-                       f"{r.u[k, i, 1]:.9g}", int(r.contact[k, i]), int(r.saturated[k, i])]
+            for i in range(r.n_elements):
+                row = [self.frames, src, i, repr(g[k][i]), repr(u[k][i][0]), repr(u[k][i][1]),
+                       int(contact[k][i]), int(saturated[k][i])]
                 if self.with_forces:
-                    row += [f"{v:.9g}" for v in forces[k, i]] + [int(clamped[k, i])]
+                    row += [repr(v) for v in forces[k][i]] + [int(clamped[k][i])]
                 self._csv.writerow(row)
             self.frames += 1
 

@@ -11,7 +11,10 @@ Steps, each a public function (the ``"reference"`` method runs them in turn):
    dome and their region (Voronoi cell of the element, cut at a radius);
 5. :func:`integrate` -- integrated grey value G and grey-value centroid per
    region; :func:`readings_from_moments` turns them into :class:`Readings`
-   (no contact -> G = 0, u = 0).
+   (no contact -> G = 0, u = 0). G sums the lit values; the centroid weighs
+   each lit value by its height above the threshold, ``value - threshold``,
+   so that a pixel's weight grows from 0 as it crosses the threshold instead
+   of jumping (see :class:`Pipeline`, *Notes*).
 
 The ``"fast"`` method (default) computes the same sums with the linear
 stages folded into per-pixel weights: the bilinear dewarp weights times the
@@ -65,6 +68,12 @@ REGION_MARGIN_MM = 0.5
 OVERSAMPLE = 2.5
 #: Frames processed together by the fast method (bounds its temporary memory).
 CHUNK_FRAMES = 64
+#: Largest grey-level magnitude a frame or baseline may hold: sums over a region (G, its
+#: moments) and the squares in the noise estimates then stay far inside float64's range.
+MAX_GREY = 1e100
+#: Smallest G (grey level x mm^2) that can read as contact: below it the sums are made of
+#: subnormal numbers, whose rounding would make the centroid meaningless.
+G_MIN = 1e-250
 
 
 # ---------------------------------------------------------------------------- input checks
@@ -75,21 +84,28 @@ def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[n
     -------
     stack : (T, H, W) ndarray
         The input as a stack (a view where possible; never modified).
+        float16 frames come back as float32 and extended-precision floats
+        as float64 (both exact for the accepted range).
     single : bool
         True when a single 2-D frame came in.
 
     Raises
     ------
     TypeError
-        For a non-numeric, bool, complex or object dtype.
+        For a non-numeric, bool, complex or object dtype, or nested
+        sequences that do not form an array.
     ShapeError
         If the array is not 2-D or 3-D or its image size is not the camera's
         ``(height, width)``.
     InputError
-        For an empty stack, a NaN or infinite pixel, or a negative value in an
-        integer frame.
+        For an empty stack, a NaN or infinite pixel, a float pixel beyond
+        ``MAX_GREY`` in magnitude, or a negative value in an integer frame.
     """
-    arr = np.asarray(frames)
+    try:
+        arr = np.asarray(frames)
+    except (ValueError, TypeError) as exc:  # ragged nested sequences
+        raise TypeError(f"{name} must be an array of grey levels (H, W) or (T, H, W); "
+                        f"could not make one ({exc})") from None
     if arr.dtype.kind not in "uif":
         raise TypeError(f"{name} must have an unsigned/signed integer or float dtype "
                         f"(uint8, uint16, float32, float64), got {arr.dtype}")
@@ -103,16 +119,59 @@ def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[n
     if stack.shape[0] == 0:
         raise InputError(f"{name} is an empty stack (0 frames)")
     if arr.dtype.kind == "f":
-        ok = np.isfinite(stack)
-        if not ok.all():
-            t, r, c = (int(i) for i in np.argwhere(~ok)[0])
-            raise InputError(f"{name} must be finite, got {stack[t, r, c]} at frame {t}, "
-                             f"pixel (row {r}, col {c})")
+        if not _within_max_grey(stack):
+            ok = np.isfinite(stack)
+            if not ok.all():
+                t, r, c = (int(i) for i in np.argwhere(~ok)[0])
+                raise InputError(f"{name} must be finite, got {stack[t, r, c]} at frame {t}, "
+                                 f"pixel (row {r}, col {c})")
+            t, r, c = (int(i) for i in np.argwhere(np.abs(stack) > MAX_GREY)[0])
+            raise InputError(f"{name} must hold grey levels of magnitude at most {MAX_GREY:g}, got "
+                             f"{stack[t, r, c]} at frame {t}, pixel (row {r}, col {c})")
+        if arr.dtype.itemsize < 4:
+            stack = stack.astype(np.float32)
+        elif arr.dtype.itemsize > 8:
+            stack = stack.astype(np.float64)
     elif arr.dtype.kind == "i" and stack.size and stack.min() < 0:
         t, r, c = (int(i) for i in np.argwhere(stack < 0)[0])
         raise InputError(f"{name} must be non-negative grey levels, got {stack[t, r, c]} at "
                          f"frame {t}, pixel (row {r}, col {c})")
     return stack, single
+
+
+def _within_max_grey(arr: np.ndarray) -> bool:
+    """True when a non-empty float array is finite and within ``MAX_GREY`` in magnitude."""
+    bound = np.asarray(MAX_GREY, dtype=np.result_type(arr.dtype, np.float64))
+    return bool(arr.min() >= -bound and arr.max() <= bound)  # NaN fails both
+
+
+def _mean0(frames: np.ndarray) -> np.ndarray:
+    """Mean over the first axis of a float64 array, to float64 rounding for any length.
+
+    Pairwise sums (error growing as log T, where numpy's reduction over the
+    first axis grows as T), then one correction pass: the pairwise mean of
+    the residuals, which are small, is added back.
+    """
+    t_n = frames.shape[0]
+    mean = _pairwise_sum0(frames) / t_n
+    return mean + _pairwise_sum0(frames - mean) / t_n
+
+
+def _pairwise_sum0(a: np.ndarray) -> np.ndarray:
+    """Sum over the first axis by pairwise halving (a new array)."""
+    while a.shape[0] > 1:
+        half = a.shape[0] // 2
+        total = a[:half] + a[half:2 * half]
+        if a.shape[0] % 2:
+            total[0] += a[-1]
+        a = total
+    return np.array(a[0])
+
+
+def _var0(frames: np.ndarray) -> np.ndarray:
+    """Sample variance (ddof = 1) over the first axis, with :func:`_mean0`'s accuracy."""
+    dev = frames - _mean0(frames)
+    return _pairwise_sum0(dev * dev) / (frames.shape[0] - 1)
 
 
 def _saturation_level(dtype: np.dtype, saturation: float | None) -> float:
@@ -281,17 +340,25 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     sensor : DomeSensor
     camera : FisheyeCamera
     radius : float, optional
-        Region radius (mm, geodesic); default :func:`default_region_radius`.
+        Region radius (mm, geodesic); default :func:`default_region_radius`;
+        at most half a great circle (``pi * outer_radius``).
         Cells nearer to another element's centre belong to that element
         (Voronoi), so regions never overlap.
     grid_mm : float, optional
         Cell size (mm); default the smallest pixel footprint in the regions
         divided by ``OVERSAMPLE`` (2.5), so the bilinear dewarp never skips a
-        pixel.
+        pixel; at most ``radius``.
 
     Returns
     -------
     RegionGrids
+
+    Raises
+    ------
+    TypeError, InputError
+        ``radius`` or ``grid_mm`` not a positive number, beyond the bounds
+        above, or so fine that a region would need more than 2001 cells
+        per side.
 
     Notes
     -----
@@ -302,9 +369,14 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     the centre (the area element of geodesic normal coordinates).
     """
     radius = default_region_radius(sensor) if radius is None else positive(radius, "radius")
+    if radius > math.pi * sensor.outer_radius:
+        raise InputError(f"radius must be at most half a great circle of the dome, "
+                         f"{math.pi * sensor.outer_radius:g} mm, got {radius!r}")
     if grid_mm is None:
         grid_mm = _smallest_footprint(sensor, camera, radius) / OVERSAMPLE
     grid_mm = positive(grid_mm, "grid_mm")
+    if grid_mm > radius:
+        raise InputError(f"grid_mm must be at most the region radius {radius:g} mm, got {grid_mm!r}")
     half = math.ceil(radius / grid_mm)
     if 2 * half + 1 > 2001:
         raise InputError(f"grid_mm={grid_mm} is too fine for radius={radius} "
@@ -380,17 +452,35 @@ def integrate(patches, grids: RegionGrids) -> tuple[np.ndarray, np.ndarray]:
     return g, np.stack([mx, my], axis=-1)
 
 
-def readings_from_moments(G, M, saturated, floor) -> Readings:
+def readings_from_moments(G, M, saturated, floor, *, weight=None) -> Readings:
     """Turn integrated values and moments into readings.
 
-    A region is in contact when ``G > floor``; then ``u = M / G``. Regions
-    not in contact read ``G = 0``, ``u = (0, 0)`` (never NaN).
+    Parameters
+    ----------
+    G : (E,) or (T, E) array_like
+        Integrated grey value of each region.
+    M : (E, 2) or (T, E, 2) array_like
+        First moments of the centroid's weights (see ``weight``).
+    saturated : bool array_like, shape of ``G``
+    floor : (E,) array_like
+        Noise floor of G per region.
+    weight : array_like, shape of ``G``, optional
+        Sum of the centroid's weights, ``u = M / weight``; default ``G``
+        (the plain grey-value centroid). The pipeline weighs each lit value by
+        its height above the threshold (see :class:`Pipeline`).
+
+    Notes
+    -----
+    A region is in contact when ``G > floor`` and ``G > G_MIN`` (1e-250:
+    smaller sums are built of subnormal numbers); then ``u = M / weight``.
+    Regions not in contact read ``G = 0``, ``u = (0, 0)`` (never NaN).
     """
     g = np.asarray(G, dtype=np.float64)
     m = np.asarray(M, dtype=np.float64)
-    contact = g > floor
+    w = g if weight is None else np.asarray(weight, dtype=np.float64)
+    contact = (g > floor) & (g > G_MIN)
     g = np.where(contact, g, 0.0)
-    u = np.divide(m, g[..., None], out=np.zeros(m.shape), where=contact[..., None])
+    u = np.divide(m, w[..., None], out=np.zeros(m.shape), where=(contact & (w > 0))[..., None])
     return Readings(g, u, contact, np.asarray(saturated, dtype=bool))
 
 
@@ -399,15 +489,21 @@ def estimate_noise(frames) -> float:
 
     The square root of the mean over pixels of the per-pixel sample variance.
     """
-    arr = np.asarray(frames)
+    try:
+        arr = np.asarray(frames)
+    except (ValueError, TypeError) as exc:
+        raise TypeError(f"frames must be a real numeric stack (T, H, W); could not make one ({exc})") from None
     if arr.ndim != 3 or arr.shape[0] < 2:
         raise ShapeError(f"estimate_noise needs a stack (T, H, W) with T >= 2, got {arr.shape}")
     if arr.dtype.kind not in "uif":
         raise TypeError(f"frames must be a real numeric stack, got dtype {arr.dtype}")
-    var = arr.astype(np.float64).var(axis=0, ddof=1)
-    if not np.isfinite(var).all():
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise InputError("frames must be finite")
-    return float(np.sqrt(var.mean()))
+    if arr.size and arr.dtype.kind == "f" and not _within_max_grey(arr):
+        raise InputError(f"frames must hold grey levels of magnitude at most {MAX_GREY:g}, got "
+                         f"{np.abs(arr).max()}")
+    var = _var0(arr.astype(np.float64))
+    return float(np.sqrt(var.mean())) if var.size else 0.0
 
 
 # ---------------------------------------------------------------------------- the fold
@@ -467,7 +563,7 @@ def _fold(grids: RegionGrids, shape: tuple[int, int]) -> _Fold:
 
 # ---------------------------------------------------------------------------- the pipeline
 class Pipeline:
-    """Frames to readings for one sensor and camera; precomputes once, then processes fast.
+    r"""Frames to readings for one sensor and camera; precomputes once, then processes fast.
 
     Parameters
     ----------
@@ -510,6 +606,38 @@ class Pipeline:
         maximum (255, 65535), none for float frames.
     radius, grid_mm : float, optional
         Region radius and dewarp cell size (mm); see :func:`split_regions`.
+
+    Raises
+    ------
+    TypeError, InputError, ShapeError
+        For a wrong kind or value of an option or of the baseline (see
+        :func:`check_frames`); also when ``k * noise_sigma`` or the noise
+        floor would overflow float64.
+
+    Notes
+    -----
+    With ``v`` a pixel's value after the baseline and the filter and ``t``
+    its threshold, a region reads
+
+    .. math::
+
+        G = \sum_{v > t} a\,v, \qquad
+        u = \frac{\sum_{v > t} a\,(x, y)\,(v - t)}{\sum_{v > t} a\,(v - t)}
+
+    (``a``, ``x``, ``y``: the pixel's folded area and coordinates). The
+    centroid's weights ``v - t`` rise continuously from 0 at the threshold:
+    with the plain weights ``v``, a faint pixel flickering across the
+    threshold moves the centroid by a jump of ``t`` times its lever arm,
+    which dominated the centroid's noise for faint, wide spots (integer
+    frames make the jump larger: the smallest lit value of an 8-bit frame at
+    a 1.5 DN threshold is 2 DN). For a Gaussian spot of rms width 0.5 mm
+    with the energy of a 0.5 N load, on the default camera and CCD, this
+    raises the centroid's efficiency against the Cramer-Rao bound from about
+    0.67 to 0.92 (:func:`optitact.stability.noise_sweep`); on rendered
+    frames, whose spots are compact and bright, the centroid's noise is
+    unchanged and the calibrated shear error the same or slightly lower.
+    Symmetric spots keep their centroid; noiseless frames (``t = 0``) read
+    the plain centroid.
 
     Examples
     --------
@@ -554,13 +682,22 @@ class Pipeline:
         #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is
         #: dark: ``k * noise_sigma`` (times the filter's noise gain); see ``threshold_map``.
         self.threshold = self.k * self.noise_sigma * gain
+        if not math.isfinite(self.threshold):
+            raise InputError(f"k * noise_sigma must be finite, got k={self.k!r}, "
+                             f"noise_sigma={self.noise_sigma!r}")
         self._baseline_input = baseline
         self.baseline, self.noise_map = (None, None) if baseline is None \
             else self._check_baseline(baseline)
         #: Per-pixel threshold (H, W) when the baseline is a stack: ``max(threshold, k *
         #: noise_map * gain)``; None otherwise.
-        self.threshold_map = None if self.noise_map is None else np.maximum(
-            self.threshold, self.k * self.noise_map * gain)
+        if self.noise_map is None:
+            self.threshold_map = None
+        else:
+            with np.errstate(over="ignore"):
+                self.threshold_map = np.maximum(self.threshold, self.k * self.noise_map * gain)
+            if not np.isfinite(self.threshold_map).all():
+                raise InputError(f"k * the baseline's noise must be finite, got k={self.k!r} and a "
+                                 f"noise of up to {self.noise_map.max():g} grey levels")
         self._geometry = dict(radius=radius, grid_mm=grid_mm)  # as given: replace() hits the cache
         self.grids = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
         self._fold = _fold(self.grids, camera.shape)
@@ -577,7 +714,11 @@ class Pipeline:
         region_thr = np.bincount(fold.label, self._thr_entries, minlength=len(fold.n_pixels))
         region_thr = np.divide(region_thr, fold.n_pixels, out=np.zeros(len(fold.n_pixels)),
                                where=fold.n_pixels > 0)
-        self.floor = samples / gain**2 * region_thr * fold.pixel_area
+        with np.errstate(over="ignore"):
+            self.floor = samples / gain**2 * region_thr * fold.pixel_area
+        if not np.isfinite(self.floor).all():
+            raise InputError(f"the noise floor of G overflows float64 for min_pixels={self.min_pixels!r}, "
+                             f"k={self.k!r}, noise_sigma={self.noise_sigma!r} and this baseline")
         self._levels: dict = {}
         self._base_entries = (np.zeros(len(self._fold.pixel)) if self.baseline is None
                               else self.baseline.reshape(-1)[self._fold.pixel])
@@ -596,11 +737,11 @@ class Pipeline:
 
         stack, _ = check_frames(baseline, self.camera, "baseline")
         frames = stack.astype(np.float64)
-        b = frames.mean(axis=0)
+        b = _mean0(frames)
         b.flags.writeable = False
         if len(frames) < 2:
             return b, None
-        var = maximum_filter(frames.var(axis=0, ddof=1), size=3, mode="nearest")
+        var = maximum_filter(_var0(frames), size=3, mode="nearest")
         var = cv2.GaussianBlur(var, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT_101)
         noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
         noise.flags.writeable = False
@@ -686,23 +827,27 @@ class Pipeline:
     def _reference(self, frame: np.ndarray) -> Readings:
         img = subtract_baseline(frame, self.baseline, clip=self.filter == "none")
         img = denoise(img, method=self.filter, size=self.filter_size)
-        img = apply_threshold(img, self.threshold if self.threshold_map is None
-                              else self.threshold_map)
-        g, m = integrate(dewarp(img, self.grids), self.grids)
+        thr = self.threshold if self.threshold_map is None else self.threshold_map
+        img = apply_threshold(img, thr)
+        g, _ = integrate(dewarp(img, self.grids), self.grids)
+        # the centroid weighs each lit value by its height above the threshold
+        w, m = integrate(dewarp(np.where(img > thr, img - thr, 0.0), self.grids), self.grids)
         level = _saturation_level(frame.dtype, self.saturation)
         hot = dewarp((frame >= level).astype(np.float64), self.grids)
-        return readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor)
+        return readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor, weight=w)
 
     def _level(self, dtype: np.dtype):
         """Lit level per region entry for frames of ``dtype``, and the entries to watch for saturation.
 
-        An entry is lit when ``frame > level``: for integer frames ``level``
-        is the largest grey level ``n`` with ``n - baseline <= threshold`` in
-        float64 (exact for integer grey levels); for float frames ``level =
-        baseline + threshold``, which matches the reference's ``frame -
-        baseline > threshold`` up to rounding at the threshold itself.
-        Entries whose level reaches the saturation level cannot show
-        saturation by being lit; they are watched separately.
+        For integer frames an entry is lit exactly when ``frame > level``,
+        ``level`` the largest grey level ``n`` with ``n - baseline <=
+        threshold`` in float64, as the reference tests it. For float frames
+        ``level`` lies a few ulps below ``baseline + threshold``: ``frame >
+        level`` picks the candidates, and the reference's own test ``frame -
+        baseline > threshold`` (float64) decides among them, so both methods
+        light the same pixels even at the threshold itself. Entries whose
+        level reaches the saturation level cannot show saturation by being
+        lit; they are watched separately.
         """
         key = dtype.str
         if key not in self._levels:
@@ -717,10 +862,13 @@ class Pipeline:
                 n -= n - b > thr
                 level = np.clip(n, 0, top).astype(dtype)
             else:
-                level = (b + thr).astype(dtype)
-                if dtype != np.float64:  # round up so no value at or below the float64 level passes
-                    low = level.astype(np.float64) < b + thr
-                    level[low] = np.nextafter(level[low], np.inf)
+                # safely below every x with x - b > thr: 4 ulps of the largest magnitude involved
+                top = b + thr
+                low = top - 4.0 * np.spacing(np.maximum(np.maximum(np.abs(b), np.abs(thr)), np.abs(top)))
+                with np.errstate(over="ignore"):  # beyond float32: +inf, so never a candidate (right)
+                    level = low.astype(dtype)
+                down = level.astype(np.float64) > low
+                level[down] = np.nextafter(level[down], -np.inf)
             if math.isinf(sat):
                 watch = np.zeros(0, np.intp)
             else:
@@ -748,27 +896,33 @@ class Pipeline:
             raw = g.reshape(-1)[idx]
             v = raw - np.take(self._base_entries, e)
             hot = idx[raw >= sat]
+            if stack.dtype.kind == "f":  # candidates: the reference's test decides
+                keep = v > np.take(self._thr_entries, e)
+                idx, e, v = idx[keep], e[keep], v[keep]
+            above = np.maximum(v - np.take(self._thr_entries, e), 0.0)
             if watch.size:
                 wt, wi = np.nonzero(g[:, watch] >= sat)
                 hot = np.concatenate([hot, wt * n_ent + watch[wi]])
         else:
             idx, v, hot = self._filtered_lit(flat)
             e = idx % n_ent
+            above = np.maximum(v - np.take(self._thr_entries, e), 0.0)
         key = fold.label[e]
         if t_n > 1:
             key = key + (idx // n_ent) * n_el
         size = t_n * n_el
         area, wx, wy = fold.weights
         g_sum = np.bincount(key, area[e] * v, minlength=size).reshape(t_n, n_el)
+        w_sum = np.bincount(key, area[e] * above, minlength=size).reshape(t_n, n_el)
         m = np.empty((t_n, n_el, 2))
-        m[..., 0] = np.bincount(key, wx[e] * v, minlength=size).reshape(t_n, n_el)
-        m[..., 1] = np.bincount(key, wy[e] * v, minlength=size).reshape(t_n, n_el)
+        m[..., 0] = np.bincount(key, wx[e] * above, minlength=size).reshape(t_n, n_el)
+        m[..., 1] = np.bincount(key, wy[e] * above, minlength=size).reshape(t_n, n_el)
         saturated = np.zeros((t_n, n_el), bool)
         if hot.size:
             saturated.reshape(-1)[fold.label[hot % n_ent] + (hot // n_ent) * n_el] = True
         if single:
-            return readings_from_moments(g_sum[0], m[0], saturated[0], self.floor)
-        return readings_from_moments(g_sum, m, saturated, self.floor)
+            return readings_from_moments(g_sum[0], m[0], saturated[0], self.floor, weight=w_sum[0])
+        return readings_from_moments(g_sum, m, saturated, self.floor, weight=w_sum)
 
     def _filtered_lit(self, flat: np.ndarray):
         """Lit entries after the filter, computed on the crop that holds the regions plus the filter's reach."""

@@ -17,6 +17,7 @@ Examples
 
 from __future__ import annotations
 
+import re
 import sys
 
 import numpy as np
@@ -33,6 +34,7 @@ from .scene import RenderSettings
 __all__ = ["render", "render_contacts", "spot_pixels", "RenderSettings", "select_variant", "TRANSPORTS",
            "active_variant", "find_libllvm", "PREFERRED_VARIANTS", "pass_seeds"]
 
+_VARIANT_NAME = re.compile(r"^(scalar|llvm|cuda)(_ad)?_(rgb|mono|spectral)(_polarized)?(_double)?$")
 #: Light transport modes of :func:`render`.
 TRANSPORTS = ("path", "two_stage")
 #: Samples per pixel rendered in one Mitsuba launch; larger spp runs as several passes.
@@ -44,9 +46,22 @@ def pass_seeds(seed: int, n_passes: int) -> list[int]:
     return [int(s) for s in np.random.SeedSequence(seed).generate_state(n_passes)]
 
 
+def _check_variant(variant) -> None:
+    """Refuse a malformed variant name before Mitsuba is imported (availability is checked later)."""
+    if variant is None:
+        return
+    if not isinstance(variant, str):
+        raise TypeError(f"variant must be a Mitsuba variant name (str), got {type(variant).__name__}")
+    if not _VARIANT_NAME.match(variant):
+        raise InputError(f"variant must be a Mitsuba variant name such as 'llvm_ad_rgb' or 'scalar_rgb' "
+                         f"(<scalar|llvm|cuda>[_ad]_<rgb|mono|spectral>[_polarized][_double]), got {variant!r}")
+
+
 def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None:
     if crop is None:
         return None
+    if isinstance(crop, (str, bytes)) or not hasattr(crop, "__len__"):
+        raise TypeError(f"crop must be a sequence (row0, col0, height, width), got {type(crop).__name__}")
     if len(crop) != 4:
         raise InputError(f"crop must be (row0, col0, height, width), got {crop!r}")
     r0, c0, h, w = (integer(v, f"crop[{i}]", minimum=0) for i, v in enumerate(crop))
@@ -178,6 +193,7 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     if not isinstance(settings, RenderSettings):
         raise TypeError(f"settings must be a RenderSettings, got {type(settings).__name__}")
     spp = integer(spp, "spp", minimum=1)
+    _check_variant(variant)
     seed = seed_value(seed)
     if seed is None:
         raise InputError("seed must be a non-negative integer, got None")
@@ -299,6 +315,9 @@ def _check_pixels(pixels, background, camera: FisheyeCamera, crop):
                              f"{canvas.shape}")
         if not np.isfinite(canvas).all():
             raise InputError("background must be finite")
+        if canvas.size and (canvas.min() < 0 or canvas.max() > np.finfo(np.float32).max):
+            raise InputError(f"background must be radiance in [0, {np.finfo(np.float32).max:.3g}] (float32), "
+                             f"got values in [{canvas.min():.3g}, {canvas.max():.3g}]")
         canvas = canvas.astype(np.float32)
     return np.flatnonzero(mask), canvas
 
