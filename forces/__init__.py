@@ -484,3 +484,22 @@ class ForceField:
         fig = self.plot(frame, camera, **kwargs)
         fig.savefig(path, dpi=100, format="png")
         return path
+
+
+# ----------------------------------------------------------------------------- friction, slip, contact
+from .friction import (  # noqa: E402  (after ForceField: friction.py does not need it)
+    CONTOUR_THRESHOLD,
+    SLIP_THRESHOLD,
+    TABLE_THRESHOLD,
+    ContactDetector,
+    FrictionEstimate,
+    SlipDetector,
+    SlipEvent,
+    SlipResult,
+    detect_contact,
+    detect_slip,
+    friction_coefficient,
+)
+
+__all__ += ["CONTOUR_THRESHOLD", "SLIP_THRESHOLD", "TABLE_THRESHOLD", "ContactDetector", "FrictionEstimate",
+            "SlipDetector", "SlipEvent", "SlipResult", "detect_contact", "detect_slip", "friction_coefficient"]
