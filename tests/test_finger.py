@@ -1,0 +1,274 @@
+"""The robotic finger: DH kinematics, RMRC, the contact model, the chain and the three experiments."""
+
+from __future__ import annotations
+
+import dataclasses
+import doctest
+import json
+
+import numpy as np
+import pytest
+
+import optitact
+import optitact.finger as fg
+from optitact.calib import CalibrationMismatchError, fit, generate
+from optitact.errors import InputError, ShapeError
+from optitact.finger import (
+    Box,
+    ChainEstimate,
+    ChainSimulator,
+    Cylinder,
+    Finger,
+    SingularityError,
+    Table,
+    UnreachableError,
+    feeler_forces,
+)
+
+SENSOR = optitact.DomeSensor.default()
+TINY = optitact.FisheyeCamera(width=120, height=90)
+
+
+def test_docstring_examples():
+    assert doctest.testmod(fg, optionflags=doctest.ELLIPSIS).failed == 0
+
+
+# ---------------------------------------------------------------------------- kinematics
+FINGERS = [Finger(), Finger(phi1_deg=10.0, phi2_deg=-15.0, d=(12.0, 3.0, -2.0), a=(5.0, 90.0, 70.0),
+                                alpha_deg=(80.0, 5.0, -3.0), theta_offset_deg=(3.0, -10.0, 20.0),
+                                base=(1.0, 2.0, 3.0), tool=15.0)]
+
+
+@pytest.mark.parametrize("finger", FINGERS)
+def test_jacobian_matches_finite_differences(finger):
+    rng = np.random.default_rng(0)
+    h = 1e-6
+    for _ in range(10):
+        th, z = rng.uniform(-2.5, 2.5, 3), rng.uniform(-20, 20)
+        num = np.stack([(finger.forward(th + h * e, z=z) - finger.forward(th - h * e, z=z)) / (2 * h)
+                        for e in np.eye(3)], axis=1)
+        np.testing.assert_allclose(finger.jacobian(th, z=z), num, rtol=0, atol=1e-6)
+
+
+def test_forward_frames_and_sensor_pose():
+    f = Finger()
+    np.testing.assert_allclose(f.forward([0, 0, 0]), [200, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(f.forward([np.pi / 2, 0, 0], z=7.0), [0, 200, 7], atol=1e-12)
+    np.testing.assert_allclose(f.forward([0, np.pi / 2, 0]), [0, 0, 200], atol=1e-12)
+    th = np.array([0.3, 0.5, -1.2])
+    rot, origin = f.sensor_pose(th, z=4.0)
+    np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-12)
+    assert np.linalg.det(rot) == pytest.approx(1.0)
+    np.testing.assert_allclose(origin + f.tool * rot[:, 2], f.forward(th, z=4.0), atol=1e-12)
+    rot_down, _ = f.sensor_pose(fg.POSE_DOWN)
+    np.testing.assert_allclose(rot_down[:, 2], [0, 0, -1], atol=1e-12)  # the apex points down
+    # z-stage and base tilt: a pure translation / rotation of the whole finger
+    tilted = Finger(phi1_deg=20.0)
+    c, s = np.cos(np.radians(20)), np.sin(np.radians(20))
+    np.testing.assert_allclose(tilted.forward(th), np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) @ f.forward(th),
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize("finger", FINGERS)
+def test_rmrc_converges(finger):
+    rng = np.random.default_rng(1)
+    for _ in range(8):
+        goal = rng.uniform([-0.8, 0.2, -1.6], [0.8, 0.9, -0.4])
+        target = finger.forward(goal, z=5.0)
+        start = goal + rng.uniform(-0.3, 0.3, 3)
+        r = finger.rmrc(target, start, z=5.0, tol=1e-4)
+        assert r.error < 1e-4 and r.iterations < 20 and r.condition < 1e3
+        np.testing.assert_allclose(finger.forward(r.theta, z=5.0), target, atol=1e-4)
+        np.testing.assert_allclose(r.path[-1], r.position)
+    # plain Newton (no step limit) converges quadratically near the solution
+    r = Finger().rmrc(Finger().forward([0.1, 0.4, -1.0]), [0.12, 0.38, -1.05], max_step=None, tol=1e-9)
+    assert r.iterations <= 5
+
+
+def test_rmrc_singular_and_unreachable():
+    f = Finger()
+    target = f.forward([0.0, 0.3, -1.0])
+    with pytest.raises(SingularityError, match="condition number"):
+        f.rmrc(target, [0.0, 0.3, 0.0])  # stretched arm: J has rank 2
+    r = f.rmrc(target, [0.0, 0.3, 0.0], damping=1.0)  # damped least squares gets out
+    assert r.error < 1e-3
+    with pytest.raises(SingularityError, match="near-singular"):
+        f.rmrc([0.0, 0.0, 100.0], [0.1, 0.3, -1.0])  # on the yaw axis: theta1 undetermined
+    with pytest.raises(UnreachableError, match="reaches 0.000 to 200.000 mm"):
+        f.rmrc([300.0, 0.0, 0.0], [0.0, 0.3, -1.0])
+    with pytest.raises(UnreachableError, match="did not reach"):
+        f.rmrc(target, [0.5, 0.6, -1.5], max_iter=1, max_step=1.0)
+    assert issubclass(SingularityError, ValueError) and issubclass(UnreachableError, ValueError)
+    with pytest.raises(ShapeError, match="theta0"):
+        f.rmrc(target, [0.0, 0.3])
+    with pytest.raises(InputError, match="tol"):
+        f.rmrc(target, [0.0, 0.3, -1.0], tol=0)
+    with pytest.raises(TypeError, match="a must be a sequence of 3"):
+        Finger(a=(1.0, 2.0))
+    with pytest.raises(InputError, match="finite"):
+        Finger(phi1_deg=float("nan"))
+
+
+# ---------------------------------------------------------------------------- contact geometry
+def test_feeler_forces_table_and_walls():
+    f = Finger()
+    rot, origin = f.sensor_pose(fg.POSE_DOWN)
+    apex_tip = origin + (SENSOR.outer_radius + 1.0) * rot[:, 2]
+    local, tips = feeler_forces(SENSOR, rot, origin, [Table(apex_tip[2] + 0.4)], stiffness=0.5)
+    np.testing.assert_allclose(tips[0], apex_tip)
+    np.testing.assert_allclose(local[0], [0, 0, 0.2], atol=1e-12)  # pressed straight on: 0.5 N/mm x 0.4 mm
+    assert np.all(local[1:] == 0)
+    cyl = Cylinder(center=(0.0, 0.0), radius=10.0)
+    d, n = cyl.signed_distance([[13.0, 0.0], [0.0, -4.0]])
+    np.testing.assert_allclose(d, [3.0, -6.0])
+    np.testing.assert_allclose(n, [[1, 0], [0, -1]])
+    box = Box(center=(0.0, 0.0), size=(4.0, 2.0), angle_deg=90.0)
+    d, n = box.signed_distance([[0.0, 3.0], [2.0, 3.0], [0.0, 0.5]])
+    np.testing.assert_allclose(d, [1.0, np.hypot(1.0, 1.0), -1.0], atol=1e-12)  # x in [-1, 1], y in [-2, 2]
+    np.testing.assert_allclose(n[0], [0, 1], atol=1e-12)
+    assert box.corners.shape == (4, 2) and len(box.outline()) == 5
+
+
+def test_sliding_friction_mild_speed_dependence():
+    assert fg.sliding_friction(0.4, 6.2) == pytest.approx(0.4)
+    lo, hi = fg.sliding_friction(0.4, 1.4), fg.sliding_friction(0.4, 25.0)
+    assert 0.39 < lo < 0.4 < hi < 0.41
+
+
+# ---------------------------------------------------------------------------- a perfect sensor
+class PerfectChain(ChainSimulator):
+    """The chain's interface with the simulated forces plus 2 mN noise: tests the experiments' logic."""
+
+    def __init__(self, noise=0.002):
+        self.sensor, self.camera, self.noise = SENSOR, optitact.FisheyeCamera(), noise
+
+    def describe(self):
+        return {"perfect": True}
+
+    def estimate(self, forces, *, first_index=0, progress=False, desc=""):
+        arr = np.asarray(forces, float)
+        arr = arr[None] if arr.ndim == 2 else arr
+        rng = np.random.default_rng(first_index)
+        loaded = arr[..., 2:3] > 0
+        est = np.where(loaded, arr + rng.normal(0, self.noise, arr.shape), 0.0)
+        flags = np.zeros(arr.shape[:2], bool)
+        return ChainEstimate(forces=est, clamped=flags, contact=loaded[..., 0], truth=arr, tipped=flags,
+                             readings=None)
+
+
+def test_surface_scanning_logic_recovers_mu():
+    res = fg.surface_scanning(chain=PerfectChain(), speeds=(1.4, 25.0), progress=False)
+    assert len(res["runs"]) == 6
+    for r in res["runs"]:
+        assert abs(r["error"]) < 0.02, r
+        assert r["within_tolerance"] and r["steady_s"][0] >= 0.6
+    assert res["runs"][0]["mu_simulated"] < 0.39 < res["runs"][1]["mu_simulated"]  # speed dependence
+    json.dumps(res, allow_nan=False)
+
+
+def test_slip_experiment_logic():
+    res = fg.slip_experiment(chain=PerfectChain(), progress=False)
+    sc = res["scores"]
+    assert len(res["onsets_s"]) == 6 and sc["recall"] == 1.0 and sc["precision"] == 1.0
+    assert 0 <= sc["max_delay_s"] <= 0.3
+    assert res["scores_truth"]["recall"] == 1.0
+    json.dumps(res, allow_nan=False)
+
+
+def test_contour_tracing_logic():
+    res = fg.contour_tracing(chain=PerfectChain(), progress=False)
+    cyl, box = res["objects"]["cylinder"], res["objects"]["box"]
+    for r in (cyl, box):
+        assert r["reached_end"] and not r["lost"] and r["n_contacts"] >= 8
+        assert abs(r["table"]["estimated_z"]) < 0.1
+        assert abs(r["trace_height_mm"] - (SENSOR.outer_radius + 1.0 + 5.0)) < 0.6
+    assert cyl["max_deviation_mm"] < 0.3 and box["max_deviation_except_corners_mm"] < 0.3
+    assert box["max_deviation_mm"] >= box["max_deviation_except_corners_mm"]
+    shaky = fg.contour_tracing(chain=PerfectChain(), objects=("cylinder",), joint_error_deg=1.0, progress=False)
+    assert shaky["objects"]["cylinder"]["max_deviation_mm"] > 0.5  # the finger's own errors show
+    json.dumps(res, allow_nan=False)
+
+
+def test_plots(tmp_path):
+    chain = PerfectChain()
+    result = {"surface_scanning": fg.surface_scanning(chain=chain, frictions=(0.4,), speeds=(6.2,),
+                                                      slide_time=1.0, progress=False),
+              "slip": fg.slip_experiment(chain=chain, rectangle=(16.0, 10.0), n_slips=2, progress=False),
+              "contour_tracing": fg.contour_tracing(chain=chain, objects=("box",), span=5.0, progress=False),
+              "seed": 0, "full": False}
+    fg.plot_experiment(result, tmp_path / "all.png")
+    fg.plot_surface_scanning(result["surface_scanning"], tmp_path / "scan.png")
+    fg.plot_slip(result["slip"], tmp_path / "slip.png")
+    fig = fg.plot_contour(result["contour_tracing"], tmp_path / "contour.png")
+    assert fig.axes
+    for name in ("all", "scan", "slip", "contour"):
+        assert (tmp_path / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(InputError, match="missing"):
+        fg.plot_experiment({"slip": {}}, tmp_path / "bad.png")
+
+
+# ---------------------------------------------------------------------------- the real chain, tiny
+@pytest.fixture(scope="module")
+def tiny_chain(tmp_path_factory):
+    """A 120x90 camera calibrated on 20 frames at 8 spp (a few seconds; noisy, for smoke tests only)."""
+    cset = generate(tmp_path_factory.mktemp("finger") / "c.zarr", frames=20, camera=TINY, spp=8, seed=0,
+                    render_mode="pixels", baseline_frames=2, progress=False)
+    return ChainSimulator(fit(cset), spp=4, seed=3, baseline_frames=2, baseline_spp=8)
+
+
+@pytest.mark.render
+def test_chain_estimates_through_the_real_chain(tiny_chain):
+    f = np.zeros((3, 41, 3))
+    f[1, 0] = (0.1, 0.0, 0.8)
+    f[2, 0] = (0.0, 0.1, 0.8)
+    a = tiny_chain.estimate(f, first_index=5)
+    b = tiny_chain.estimate(f, first_index=5)
+    assert a.forces.shape == (3, 41, 3) and a.clamped.shape == a.contact.shape == (3, 41)
+    np.testing.assert_array_equal(a.forces, b.forces)  # same seeds, same frames
+    assert not a.contact[0].any() and a.contact[1:, 0].all()
+    assert a.forces[1, 0, 2] > 0.3 and a.forces[1, 0, 0] > a.forces[2, 0, 0]  # coarse on a 120x90 camera
+    np.testing.assert_array_equal(a.truth, f)
+    assert len(a) == 3 and len(a.readings) == 3
+    json.dumps(tiny_chain.describe())
+
+
+def test_chain_checks(tiny_chain):
+    with pytest.raises(CalibrationMismatchError):
+        ChainSimulator(tiny_chain.calibration, camera=optitact.FisheyeCamera())
+    with pytest.raises(InputError, match="must not set"):
+        ChainSimulator(tiny_chain.calibration, render_options={"spp": 3})
+    with pytest.raises(TypeError, match="Calibration"):
+        ChainSimulator("shipped")
+    with pytest.raises(ShapeError, match="forces"):
+        tiny_chain.estimate(np.zeros((41, 2)))
+
+
+@pytest.mark.render
+def test_experiments_run_through_the_real_chain(tiny_chain, tmp_path):
+    result = {
+        "surface_scanning": fg.surface_scanning(chain=tiny_chain, frictions=(0.3,), speeds=(6.2,),
+                                                slide_time=0.5, frame_rate=8.0, progress=False),
+        "slip": fg.slip_experiment(chain=tiny_chain, rectangle=(6.0, 4.0), speed=6.0, n_slips=1,
+                                   frame_rate=5.0, progress=False),
+        "contour_tracing": fg.contour_tracing(chain=tiny_chain, objects=("cylinder",), span=3.0, max_frames=12,
+                                              progress=False),
+        "seed": 0, "full": False}
+    run = result["surface_scanning"]["runs"][0]
+    assert run["frames"] == len(run["series"]["t"]) and "mu_truth_steady" in run
+    assert result["slip"]["frames"] == len(result["slip"]["series"]["t"])
+    assert result["contour_tracing"]["objects"]["cylinder"]["frames"] <= 12
+    json.dumps(result, allow_nan=False)
+    fg.plot_experiment(result, tmp_path / "finger.png")
+    assert (tmp_path / "finger.png").stat().st_size > 10_000
+
+
+def test_experiment_argument_checks():
+    with pytest.raises(InputError, match="not both"):
+        fg.experiment(chain=PerfectChain(), calibration="extended")
+    with pytest.raises(TypeError, match="ChainSimulator"):
+        fg.surface_scanning(chain="default")
+    with pytest.raises(InputError, match="seed"):
+        fg.slip_experiment(chain=PerfectChain(), seed=None)
+    with pytest.raises(InputError, match="objects"):
+        fg.contour_tracing(chain=PerfectChain(), objects=("sphere",))
+    assert dataclasses.is_dataclass(Finger())
