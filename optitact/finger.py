@@ -104,6 +104,16 @@ def _joints(theta, name: str = "theta") -> np.ndarray:
     return th
 
 
+def _direction(value, name: str = "direction") -> np.ndarray:
+    d = finite(real_array(value, name), name)
+    if d.shape != (3,):
+        raise ShapeError(f"{name} must have shape (3,) (a world direction), got {d.shape}")
+    n = float(np.linalg.norm(d))
+    if not n > 0:
+        raise InputError(f"{name} must be a non-zero vector, got {d.tolist()}")
+    return d / n
+
+
 def _point(value, name: str) -> np.ndarray:
     p = finite(real_array(value, name), name)
     if p.shape != (3,):
@@ -137,6 +147,7 @@ class RMRCResult:
     iterations: int
     condition: float
     path: np.ndarray = field(repr=False)
+    z: float = 0.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -361,7 +372,7 @@ class Finger:
                         f"(condition number {cond:.3g} > cond_max {cond_max:g}, e.g. on the yaw axis or with "
                         f"the finger stretched): the joints there are undetermined")
                 return RMRCResult(theta=th, position=path[-1], error=err, iterations=k, condition=cond,
-                                  path=np.array(path))
+                                  path=np.array(path), z=z)
             if k == max_iter:
                 break
             if max_step is not None and err > max_step:
@@ -380,6 +391,124 @@ class Finger:
             path.append(self.forward(th, z=z))
         raise UnreachableError(f"RMRC did not reach {np.round(rd, 3).tolist()} mm within {max_iter} updates "
                                f"(residual {err:.3g} mm > tol {tol:g} mm; condition number {cond:.3g})")
+
+    # ------------------------------------------------------------------ with the z-stage: hold the lean
+    def lean(self, theta, *, z: float = 0.0, direction=(1.0, 0.0, 0.0)) -> float:
+        """Lean of the sensor axis from straight down towards ``direction`` (rad): ``asin(z_s . d)``."""
+        d = _direction(direction)
+        return float(math.asin(np.clip(self.sensor_pose(theta, z=z)[0][:, 2] @ d, -1.0, 1.0)))
+
+    def jacobian_stage(self, theta, *, z: float = 0.0, direction=(1.0, 0.0, 0.0)) -> np.ndarray:
+        """Jacobian (4, 4) of ``(tool point, z_s . d)`` with respect to ``(theta_1..3, z-stage)``.
+
+        Rows 0-2: the tool point (mm per rad, and 1 per mm of stage); row 3: the
+        sensor axis's component along the horizontal unit ``direction`` (per rad;
+        the stage does not turn it). Tested against finite differences.
+        """
+        d = _direction(direction)
+        fr = self.frames(theta, z=z)
+        zs = fr[3][:3, 0]
+        jac = np.zeros((4, 4))
+        jac[:3, :3] = self.jacobian(theta, z=z)
+        jac[2, 3] = 1.0
+        jac[3, :3] = [np.cross(fr[i][:3, 2], zs) @ d for i in range(3)]
+        return jac
+
+    def rmrc_lean(self, target, lean_deg: float, theta0, *, z0: float = 0.0, direction=(1.0, 0.0, 0.0),
+                  tol: float = 1e-3, max_iter: int = 200, max_step: float | None = 10.0,
+                  cond_max: float = 1e4, length_scale: float = 100.0) -> RMRCResult:
+        r"""Resolved motion rate control with the z-stage as a fourth axis, holding the sensor's lean.
+
+        Three joints place the tool point but leave the sensor's orientation to
+        follow; with the z-stage as a fourth (prismatic) axis the finger can
+        also hold the sensor axis leaning ``lean_deg`` from straight down
+        towards ``direction`` -- e.g. constant along a friction-scanning stroke.
+
+        Parameters
+        ----------
+        target : (3,) array_like
+            Desired tool position (mm, world).
+        lean_deg : float
+            Desired lean (deg), ``z_s . d = sin(lean)``; in (-90, 90).
+        theta0 : (3,) array_like
+            Starting joint angles (rad).
+        z0 : float
+            Starting z-stage position (mm).
+        direction : (3,) array_like
+            Horizontal direction of the lean (normalised), default +x.
+        tol : float
+            Stop when ``|r_d - r| < tol`` (mm) and the lean is within
+            ``tol / length_scale`` rad.
+        max_iter, max_step, cond_max
+            As in :meth:`rmrc` (``max_step`` bounds the Cartesian part).
+        length_scale : float
+            Millimetres per radian of lean in the error norm and the
+            condition number (default 100, the finger's link scale).
+
+        Returns
+        -------
+        RMRCResult
+            With the stage position reached in ``z``.
+
+        Raises
+        ------
+        SingularityError
+            ``cond`` of the scaled 4x4 Jacobian exceeds ``cond_max`` (e.g.
+            the second link vertical over the stroke, where holding the lean
+            leaves no way to move horizontally).
+        UnreachableError
+            Not converged within ``max_iter`` updates.
+        TypeError, ShapeError, InputError
+            Bad arguments.
+
+        Notes
+        -----
+        Newton's method on ``(r, z_s . d)`` as functions of ``(theta, z)``:
+        ``(theta, z)_{k+1} = (theta, z)_k + J_4^{-1} e_k`` with
+        ``J_4`` = :meth:`jacobian_stage` and ``e_k`` the position and
+        lean errors (the lean row scaled by ``length_scale``).
+        """
+        rd = _point(target, "target")
+        lean = _real(lean_deg, "lean_deg")
+        if not -90.0 < lean < 90.0:
+            raise InputError(f"lean_deg must be in (-90, 90) degrees, got {lean!r}")
+        sd = math.sin(math.radians(lean))
+        d = _direction(direction)
+        th = _joints(theta0, "theta0").copy()
+        z = _real(z0, "z0")
+        tol = positive(tol, "tol")
+        max_iter = integer(max_iter, "max_iter", minimum=1)
+        if max_step is not None:
+            max_step = positive(max_step, "max_step")
+        cond_max = positive(cond_max, "cond_max")
+        ls = positive(length_scale, "length_scale")
+        w = np.array([1.0, 1.0, 1.0, ls])
+        path = [self.forward(th, z=z)]
+        cond, err = float("nan"), float("inf")
+        for k in range(max_iter + 1):
+            s = self.sensor_pose(th, z=z)[0][:, 2] @ d
+            e = np.append(rd - path[-1], sd - s) * w
+            err = float(np.linalg.norm(e[:3]))
+            jac = self.jacobian_stage(th, z=z, direction=d) * w[:, None]
+            cond = float(np.linalg.cond(jac))
+            if not cond <= cond_max:
+                raise SingularityError(
+                    f"the z-stage Jacobian is near-singular at theta = {np.round(th, 4).tolist()} rad, "
+                    f"z = {z:.3f} mm (condition number {cond:.3g} > cond_max {cond_max:g}) on the way to "
+                    f"{np.round(rd, 3).tolist()} mm with a {lean:g} deg lean")
+            if err < tol and abs(e[3]) < tol:
+                return RMRCResult(theta=th, position=path[-1], error=err, iterations=k, condition=cond,
+                                  path=np.array(path), z=z)
+            if k == max_iter:
+                break
+            if max_step is not None and np.linalg.norm(e) > max_step:
+                e = e * (max_step / np.linalg.norm(e))
+            step = np.linalg.solve(jac, e)
+            th, z = th + step[:3], z + float(step[3])
+            path.append(self.forward(th, z=z))
+        raise UnreachableError(f"RMRC with the z-stage did not reach {np.round(rd, 3).tolist()} mm at a "
+                               f"{lean:g} deg lean within {max_iter} updates (position residual {err:.3g} mm; "
+                               f"condition number {cond:.3g})")
 
 
 # ============================================================================ objects and contact
@@ -858,8 +987,30 @@ def _follow(finger: Finger, targets: np.ndarray, theta0, *, z: float = 0.0) -> t
     return np.array(thetas), np.array(rots)
 
 
+def _follow_lean(finger: Finger, targets: np.ndarray, lean: float, theta0, z0: float):
+    """Joint angles (T, 3), sensor rotations (T, 3, 3) and stage positions (T,) holding a lean along +x."""
+    th, z = np.asarray(theta0, float), float(z0)
+    here = finger.forward(th, z=z)
+    n_walk = int(np.ceil(np.linalg.norm(targets[0] - here) / 2.0))
+    for p in here + np.outer(np.arange(1, n_walk) / n_walk, targets[0] - here):  # walk to the start
+        r = finger.rmrc_lean(p, lean, th, z0=z)
+        th, z = r.theta, r.z
+    thetas, rots, stage = [], [], []
+    for p in targets:
+        r = finger.rmrc_lean(p, lean, th, z0=z)
+        th, z = r.theta, r.z
+        thetas.append(th)
+        rots.append(finger.sensor_pose(th, z=z)[0])
+        stage.append(z)
+    return np.array(thetas), np.array(rots), np.array(stage)
+
+
 #: Joint angles (rad) with the sensor axis pointing straight down (pitch -90 deg).
 POSE_DOWN = np.radians([0.0, 30.0, -120.0])
+#: Joint angles (rad) at the middle of a friction-scanning stroke: the sensor axis 9 deg from
+#: straight down towards +x, the second link at 50 deg so that a 62.5 mm radial stroke stays
+#: clear of the singular (horizontal) second link.
+POSE_SCAN = np.radians([0.0, 50.0, -131.0])
 #: Joint angles (rad) of contour tracing: the sensor axis 45 deg below the horizontal.
 POSE_TRACE = np.radians([0.0, 20.0, -65.0])
 
@@ -900,7 +1051,8 @@ def _scan_profile(mu_k: float, speed: float, fn0: float, rate: float, slide_time
 def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.40, 0.53),
                      speeds=(1.4, 6.2, 25.0), normal_force: float = 0.1, frame_rate: float = 20.0,
                      slide_time: float = 2.5, speed_coefficient: float = 0.01, tolerance: float = 0.02,
-                     finger: Finger | None = None, seed: int = 0, progress: bool = True) -> dict:
+                     lean_deg: float = 9.0, finger: Finger | None = None, seed: int = 0,
+                     progress: bool = True) -> dict:
     r"""Friction coefficients of flat specimens scanned by the apex element, from estimated forces.
 
     Parameters
@@ -923,9 +1075,14 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
         ``c`` of :func:`sliding_friction` (default 0.01).
     tolerance : float
         The accepted ``|mu_est - mu_sim|``, published 0.02.
+    lean_deg : float
+        Lean of the sensor axis from straight down towards the sliding
+        direction (deg), default 9, held along the stroke with the z-stage
+        (:meth:`Finger.rmrc_lean`); see *Notes*. 0 presses the apex straight
+        down.
     finger : Finger, optional
-        Default ``Finger()``; the scan is a straight line of the apex across
-        the arm (world y) at ``POSE_DOWN``, followed by RMRC frame by frame.
+        Default ``Finger()``; the stroke is a straight radial line of the apex
+        (world +x) from ``POSE_SCAN``, followed by RMRC frame by frame.
     seed : int
     progress : bool
         tqdm bars on stderr.
@@ -938,8 +1095,10 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
         ``mu_std``, ``error``, ``within_tolerance``, ``steady_s``,
         ``mu_truth_steady`` (the same steady-part analysis on the simulated
         forces), ``clamped_fraction`` and ``tipped_fraction`` over the steady
-        part, the largest sensor tilt, and the ``series`` ``t, fn, ft, mu``
-        estimated and true), ``summary``, ``settings``, ``seconds``.
+        part, ``local_ratio_steady`` (the element-local ``|F_t| / F_z`` the
+        sensor saw), the lean's range, the z-stage travel, and the
+        ``series`` ``t, fn, ft, mu`` estimated and true), ``summary``,
+        ``settings``, ``seconds``.
 
     Notes
     -----
@@ -955,6 +1114,25 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
     read back; the estimated forces are turned back into world normal and
     tangential components with the same orientation, and
     :func:`optitact.forces.friction_coefficient` finds the steady part.
+
+    Why the lean: the element's columnar feeler tips over when
+    ``h |F_t| > r F_z`` (lever arm ``h`` = 3 mm, cone circle ``r`` = 1.25 mm:
+    at ``|F_t| / F_z`` of about 0.37-0.40, :func:`optitact.contact.cone_loads`);
+    beyond that the centroid stops following the shear, so an element whose
+    axis is along the specimen's normal cannot measure ``mu`` = 0.53 at any
+    normal force. With the sensor axis leaning by ``beta`` towards the
+    sliding direction, the contact force (leaning back by the friction angle
+    ``phi = atan mu``) meets the element at ``phi - beta``: the element sees
+    ``|F_t| / F_z = tan(phi - beta)`` -- 0.35 for the steady 0.537 (0.53 at
+    25 mm/s) with ``beta`` = 9 deg, 0.22 for 0.39 -- and ``-tan(beta)``
+    while pressing without sliding. 9 deg keeps the apex feeler the lowest
+    one (the nearest ring-1 feeler stays 0.32 mm above the specimen, more
+    than the apex's indentation). A three-joint finger cannot hold an
+    orientation while it moves (the lean would drift by about 0.55 deg/mm
+    along a radial stroke); the z-stage as a fourth axis holds it
+    (:meth:`Finger.rmrc_lean`). The world ``mu`` is recovered exactly by
+    rotating the estimated forces back, so the lean changes what the element
+    sees, not what is measured.
     """
     from tqdm import tqdm
 
@@ -969,9 +1147,14 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
     tol = positive(tolerance, "tolerance")
     frictions = [positive(m, f"frictions[{i}]") for i, m in enumerate(frictions)]
     speeds = [positive(v, f"speeds[{i}]") for i, v in enumerate(speeds)]
+    lean = _real(lean_deg, "lean_deg")
+    if not 0.0 <= lean < 45.0:
+        raise InputError(f"lean_deg must be in [0, 45) degrees, got {lean!r}")
     sensor = chain.sensor
     t0 = time.perf_counter()
-    apex0 = finger.forward(POSE_DOWN)
+    guess = POSE_SCAN + np.radians([0.0, 0.0, lean - 9.0])  # second link at 50 deg, third at the lean
+    start = finger.rmrc_lean(finger.forward(guess), lean, guess)
+    theta_c, z_c, apex0 = start.theta, start.z, start.position
     runs = []
     cases = [(m, v) for m in frictions for v in speeds]
     index = 0
@@ -982,25 +1165,28 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
         prof = _scan_profile(mu_k, v, fn0, rate, slide_time, rng)
         n = len(prof["t"])
         length = v * slide_time
-        targets = apex0 + np.outer(prof["x"] - length / 2.0, [0.0, 1.0, 0.0])
-        _, rots = _follow(finger, targets, POSE_DOWN)
+        targets = apex0 + np.outer(prof["x"] - length / 2.0, [1.0, 0.0, 0.0])
+        _, rots, stage = _follow_lean(finger, targets, lean, theta_c, z_c)
         world = np.zeros((n, sensor.n_elements, 3))
-        world[:, 0, 1] = -prof["ft"]  # friction opposes the apex's motion (+y)
+        world[:, 0, 0] = -prof["ft"]  # friction opposes the apex's motion (+x)
         world[:, 0, 2] = prof["fn"]
         local = _local_forces(sensor, world, rots)
         est = chain.estimate(local, first_index=index, progress=progress, desc=f"mu {mu:g}, {v:g} mm/s")
         index += n
         west = _world_forces(sensor, est.forces, rots)[:, 0]
         fn_e, ft_e = west[:, 2], np.hypot(west[:, 0], west[:, 1])
-        tilt = np.degrees(np.arccos(np.clip(-rots[:, 2, 2], -1.0, 1.0)))
+        leans = np.degrees(np.arcsin(np.clip(rots[:, 0, 2], -1.0, 1.0)))
         run = {"friction": mu, "speed_mm_s": v, "mu_simulated": mu_k, "frames": n,
-               "max_tilt_deg": float(tilt.max())}
+               "lean_deg": [float(leans.min()), float(leans.max())],
+               "stage_travel_mm": float(np.ptp(stage))}
         try:
             fe = friction_coefficient(ft_e, fn_e, t=prof["t"])
             run.update(mu_estimated=fe.mean, mu_std=fe.std, mu_sem=fe.sem, error=fe.mean - mu_k,
                        within_tolerance=bool(abs(fe.mean - mu_k) <= tol), steady_s=[fe.t_start, fe.t_stop],
                        steady_samples=fe.n, clamped_fraction=float(est.clamped[fe.steady, 0].mean()),
-                       tipped_fraction=float(est.tipped[fe.steady, 0].mean()))
+                       tipped_fraction=float(est.tipped[fe.steady, 0].mean()),
+                       local_ratio_steady=float(np.median(
+                           np.hypot(local[fe.steady, 0, 0], local[fe.steady, 0, 1]) / local[fe.steady, 0, 2])))
             mu_series = fe.mu
         except InputError as exc:
             run.update(mu_estimated=None, error=None, within_tolerance=False, failure=str(exc))

@@ -109,6 +109,45 @@ def test_rmrc_singular_and_unreachable():
         Finger(phi1_deg=float("nan"))
 
 
+@pytest.mark.parametrize("finger", FINGERS)
+def test_stage_jacobian_matches_finite_differences(finger):
+    rng = np.random.default_rng(2)
+    h = 1e-6
+    d = np.array([0.6, 0.8, 0.0])
+
+    def task(q):
+        return np.append(finger.forward(q[:3], z=q[3]), finger.sensor_pose(q[:3], z=q[3])[0][:, 2] @ d)
+
+    for _ in range(10):
+        q = np.append(rng.uniform(-2.5, 2.5, 3), rng.uniform(-20, 20))
+        num = np.stack([(task(q + h * e) - task(q - h * e)) / (2 * h) for e in np.eye(4)], axis=1)
+        np.testing.assert_allclose(finger.jacobian_stage(q[:3], z=q[3], direction=d), num, rtol=0, atol=1e-6)
+
+
+def test_rmrc_lean_holds_the_lean_along_a_stroke():
+    f = Finger()
+    start = f.rmrc_lean(f.forward(fg.POSE_SCAN), 9.0, fg.POSE_SCAN)
+    assert np.degrees(f.lean(start.theta, z=start.z)) == pytest.approx(9.0, abs=1e-5)
+    th, z = start.theta, start.z
+    plain = []
+    for dx in np.linspace(-31.25, 31.25, 9):
+        target = start.position + [dx, 0.0, 0.0]
+        r = f.rmrc_lean(target, 9.0, th, z0=z, tol=1e-6)
+        th, z = r.theta, r.z
+        np.testing.assert_allclose(f.forward(th, z=z), target, rtol=0, atol=1e-6)
+        assert np.degrees(f.lean(th, z=z)) == pytest.approx(9.0, abs=1e-6)
+        plain.append(np.degrees(f.lean(f.rmrc(target, fg.POSE_SCAN, z=start.z).theta, z=start.z)))
+    assert np.ptp(plain) > 20  # three joints alone let the lean drift by ~0.55 deg/mm
+    with pytest.raises(SingularityError, match="z-stage Jacobian"):
+        f.rmrc_lean(start.position + [10.0, 0, 0], 9.0, [0.0, 0.0, np.radians(-81.0)])  # link 2 horizontal
+    with pytest.raises(InputError, match="lean_deg"):
+        f.rmrc_lean(start.position, 90.0, fg.POSE_SCAN)
+    with pytest.raises(InputError, match="non-zero"):
+        f.rmrc_lean(start.position, 9.0, fg.POSE_SCAN, direction=(0, 0, 0))
+    with pytest.raises(UnreachableError, match="z-stage did not reach"):
+        f.rmrc_lean(start.position + [30.0, 0, 0], 9.0, fg.POSE_SCAN, max_iter=1, max_step=1.0)
+
+
 # ---------------------------------------------------------------------------- contact geometry
 def test_feeler_forces_table_and_walls():
     f = Finger()
@@ -156,13 +195,19 @@ class PerfectChain(ChainSimulator):
                              readings=None)
 
 
-def test_surface_scanning_logic_recovers_mu():
-    res = fg.surface_scanning(chain=PerfectChain(), speeds=(1.4, 25.0), progress=False)
+@pytest.mark.parametrize("lean", [9.0, 0.0])
+def test_surface_scanning_logic_recovers_mu(lean):
+    res = fg.surface_scanning(chain=PerfectChain(), speeds=(1.4, 25.0), lean_deg=lean, progress=False)
     assert len(res["runs"]) == 6
     for r in res["runs"]:
         assert abs(r["error"]) < 0.02, r
         assert r["within_tolerance"] and r["steady_s"][0] >= 0.6
+        assert r["lean_deg"] == pytest.approx([lean, lean], abs=1e-6)
+        # the element sees the contact force at (friction angle - lean) from its axis
+        expected = np.tan(np.arctan(r["mu_truth_steady"]) - np.radians(lean))
+        assert r["local_ratio_steady"] == pytest.approx(expected, abs=0.01)
     assert res["runs"][0]["mu_simulated"] < 0.39 < res["runs"][1]["mu_simulated"]  # speed dependence
+    assert res["runs"][1]["stage_travel_mm"] > 20 * (lean > 0)  # the stage holds the lean on 62.5 mm
     json.dumps(res, allow_nan=False)
 
 
