@@ -234,19 +234,41 @@ def test_contour_tracing_logic():
     json.dumps(res, allow_nan=False)
 
 
+def test_joint_error_study_separates_sensing_from_positioning():
+    base = fg.contour_tracing(chain=PerfectChain(), objects=("cylinder", "box"), span=8.0, progress=False)
+    st = fg.joint_error_study(chain=PerfectChain(), joint_errors_deg=(0.0, 1.0), repeats=2, span=8.0,
+                              baseline=base, progress=False)
+    assert st["joint_error_deg"] == [0.0, 1.0]
+    for name in ("cylinder", "box"):
+        o = st["objects"][name]
+        assert len(o["max_deviation_mm"][0]) == 1 and len(o["max_deviation_mm"][1]) == 2
+        assert o["max_deviation_mm"][0][0] < 0.3 < min(o["max_deviation_mm"][1])  # 1 deg at ~200 mm reach
+        assert o["published_mm"] == fg.PUBLISHED_DEVIATION_MM[name]
+    assert st["objects"]["box"]["max_deviation_mm"][0][0] == base["objects"]["box"][
+        "max_deviation_except_corners_mm"]
+    json.dumps(st, allow_nan=False)
+    with pytest.raises(InputError, match="repeats"):
+        fg.joint_error_study(chain=PerfectChain(), repeats=0)
+
+
 def test_plots(tmp_path):
     chain = PerfectChain()
+    trace = fg.contour_tracing(chain=chain, objects=("box",), span=5.0, progress=False)
     result = {"surface_scanning": fg.surface_scanning(chain=chain, frictions=(0.4,), speeds=(6.2,),
                                                       slide_time=1.0, progress=False),
               "slip": fg.slip_experiment(chain=chain, rectangle=(16.0, 10.0), n_slips=2, progress=False),
-              "contour_tracing": fg.contour_tracing(chain=chain, objects=("box",), span=5.0, progress=False),
+              "contour_tracing": trace,
+              "joint_error_study": fg.joint_error_study(chain=chain, joint_errors_deg=(0.0, 0.5), repeats=1,
+                                                        objects=("box",), span=5.0, baseline=trace,
+                                                        progress=False),
               "seed": 0, "full": False}
     fg.plot_experiment(result, tmp_path / "all.png")
     fg.plot_surface_scanning(result["surface_scanning"], tmp_path / "scan.png")
     fg.plot_slip(result["slip"], tmp_path / "slip.png")
     fig = fg.plot_contour(result["contour_tracing"], tmp_path / "contour.png")
     assert fig.axes
-    for name in ("all", "scan", "slip", "contour"):
+    fg.plot_joint_error_study(result["joint_error_study"], tmp_path / "joints.png")
+    for name in ("all", "scan", "slip", "contour", "joints"):
         assert (tmp_path / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(InputError, match="missing"):
         fg.plot_experiment({"slip": {}}, tmp_path / "bad.png")
