@@ -105,6 +105,12 @@ def _joints(theta, name: str = "theta") -> np.ndarray:
     return th
 
 
+def _rmrc_options(tol, max_iter, max_step, cond_max) -> tuple[float, int, float | None, float]:
+    """Validated ``tol``, ``max_iter``, ``max_step`` (None allowed) and ``cond_max`` of an RMRC call."""
+    return (positive(tol, "tol"), integer(max_iter, "max_iter", minimum=1),
+            None if max_step is None else positive(max_step, "max_step"), positive(cond_max, "cond_max"))
+
+
 def _direction(value, name: str = "direction") -> np.ndarray:
     d = finite(real_array(value, name), name)
     if d.shape != (3,):
@@ -344,11 +350,7 @@ class Finger:
         rd = _point(target, "target")
         th = _joints(theta0, "theta0").copy()
         z = _real(z, "z")
-        tol = positive(tol, "tol")
-        max_iter = integer(max_iter, "max_iter", minimum=1)
-        if max_step is not None:
-            max_step = positive(max_step, "max_step")
-        cond_max = positive(cond_max, "cond_max")
+        tol, max_iter, max_step, cond_max = _rmrc_options(tol, max_iter, max_step, cond_max)
         damping = positive(damping, "damping", allow_zero=True)
         reach = self._reach()
         if reach is not None:
@@ -477,11 +479,7 @@ class Finger:
         d = _direction(direction)
         th = _joints(theta0, "theta0").copy()
         z = _real(z0, "z0")
-        tol = positive(tol, "tol")
-        max_iter = integer(max_iter, "max_iter", minimum=1)
-        if max_step is not None:
-            max_step = positive(max_step, "max_step")
-        cond_max = positive(cond_max, "cond_max")
+        tol, max_iter, max_step, cond_max = _rmrc_options(tol, max_iter, max_step, cond_max)
         ls = positive(length_scale, "length_scale")
         w = np.array([1.0, 1.0, 1.0, ls])
         path = [self.forward(th, z=z)]
@@ -1928,6 +1926,7 @@ def _draw_scanning(fig, result: dict) -> None:
     ax.set_xscale("log")
     ax.set_xticks(speeds, [f"{v:g}" for v in speeds])
     ax.minorticks_off()
+    ax.set_xlim(min(speeds) / 1.5, max(speeds) * 1.5)
     ax.set_xlabel("speed (mm/s)")
     ax.set_ylabel("μ")
     ax.set_title("estimated (markers, ±1 sd) vs simulated (crosses) friction coefficient", fontsize=8)

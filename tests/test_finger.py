@@ -168,6 +168,20 @@ def test_feeler_forces_table_and_walls():
     assert box.corners.shape == (4, 2) and len(box.outline()) == 5
 
 
+def test_scan_lean_keeps_the_apex_feeler_alone_on_the_specimen():
+    f = Finger()
+    r = f.rmrc_lean(f.forward(fg.POSE_SCAN), 9.0, fg.POSE_SCAN)
+    rot, origin = f.sensor_pose(r.theta, z=r.z)
+    tips = origin + ((SENSOR.outer_radius + 1.0) * SENSOR.element_frames[:, 2, :]) @ rot.T
+    height = np.sort(tips[:, 2] - tips[0, 2])
+    assert np.argmin(tips[:, 2]) == 0 and height[1] > 0.3  # next feeler 0.32 mm up: > 0.2 mm indentation
+    local, _ = feeler_forces(SENSOR, rot, origin, [Table(tips[0, 2] + 0.2)], stiffness=0.5)
+    assert np.flatnonzero(local[:, 2] > 0).tolist() == [0]
+    # a frictionless press reaches the element 9 deg off its axis
+    np.testing.assert_allclose(np.degrees(np.arctan2(np.hypot(*local[0, :2]), local[0, 2])), 9.0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(local[0]), 0.1, atol=1e-12)
+
+
 def test_sliding_friction_mild_speed_dependence():
     assert fg.sliding_friction(0.4, 6.2) == pytest.approx(0.4)
     lo, hi = fg.sliding_friction(0.4, 1.4), fg.sliding_friction(0.4, 25.0)
