@@ -1561,7 +1561,7 @@ def _trace_one(obj, chain: ChainSimulator, finger: Finger, *, start_y: float, en
     c = centre[:2].copy()
     path, contacts, normals, forces = [c.copy()], [], [], []
     travel, turns, n_turns, lost = 0.0, 0, 0, False
-    failure = None
+    failure, table_touches = None, 0
     while not probe.exhausted:
         try:
             probe.move(np.array([c[0], c[1], c_z]), z_stage)
@@ -1570,10 +1570,14 @@ def _trace_one(obj, chain: ChainSimulator, finger: Finger, *, start_y: float, en
             break
         s = probe.sense()
         state = det.update(s["est"][:, 2])
+        total = s["world"][state].sum(axis=0)
+        if state.any() and total[2] > math.hypot(total[0], total[1]):
+            # Pushed up more than sideways: the table (a finger that sagged), not the object's wall.
+            table_touches += 1
+            state[:] = False
         if state.any():
             fz = np.where(state, s["est"][:, 2], -np.inf)
             e = int(np.argmax(fz))
-            total = s["world"][state].sum(axis=0)
             nhat = _unit(total)
             point = s["tips"][e] + (s["est"][e, 2] / stiffness) * nhat
             contacts.append(point[:2])
@@ -1613,6 +1617,7 @@ def _trace_one(obj, chain: ChainSimulator, finger: Finger, *, start_y: float, en
             "mean_deviation_mm": float(dev.mean()) if len(dev) else None,
             "max_deviation_except_corners_mm": float(keep.max()) if len(keep) else None,
             "n_contacts": int(len(pts)), "square_search_turns": n_turns, "lost": lost, "failure": failure,
+            "table_touches": table_touches,
             "reached_end": bool(len(pts) and pts[-1, 1] >= end_y),
             "frames": probe.frames, "table": {"true_z": 0.0, "estimated_z": table_est, "frames": table_frames},
             "trace_height_mm": float(c_z), "outline": obj.outline(), "corners": corners}
@@ -1692,7 +1697,10 @@ def contour_tracing(*, chain: ChainSimulator | None = None, objects=("cylinder",
        approach runs ``retreat + step`` mm without contact (the surface
        turned away, at a corner), *square search*: turn the search
        direction by 90 deg towards the object and approach again (at most
-       4 turns).
+       4 turns). A contact whose estimated force pushes up more than
+       sideways is the table (only a finger with joint errors sags that far):
+       it is counted (``table_touches``), not recorded, and the approach
+       goes on.
 
     The published deviations (about 3.6 mm on a cylinder, 2.7 mm on a box
     away from the corners) are of the real finger, whose positioning errors
@@ -1748,7 +1756,7 @@ PUBLISHED_DEVIATION_MM = {"cylinder": 3.6, "box": 2.7}
 
 
 def joint_error_study(*, chain: ChainSimulator | None = None, joint_errors_deg=(0.0, 0.25, 0.5, 1.0),
-                      repeats: int = 2, objects=("cylinder", "box"), baseline: dict | None = None,
+                      repeats: int = 3, objects=("cylinder", "box"), baseline: dict | None = None,
                       seed: int = 0, progress: bool = True, **trace_options) -> dict:
     """Contour-tracing deviations against the finger's own (unmeasured) joint errors.
 
@@ -1765,7 +1773,7 @@ def joint_error_study(*, chain: ChainSimulator | None = None, joint_errors_deg=(
     joint_errors_deg : sequence of float
         Standard deviations of the joint-angle error (deg), default 0, 0.25, 0.5, 1.
     repeats : int
-        Traces per level and object (default 2; an ideal finger is traced once).
+        Traces per level and object (default 3; an ideal finger is traced once).
     objects : sequence
         As for :func:`contour_tracing`.
     baseline : dict, optional
@@ -1780,7 +1788,7 @@ def joint_error_study(*, chain: ChainSimulator | None = None, joint_errors_deg=(
     dict
         JSON-ready: ``joint_error_deg``, and per object ``max_deviation_mm`` (the cylinder's
         largest deviation, the box's away from its corners) as a list per level (one value per
-        repeat), their ``mean``, the ``published_mm`` figure, and ``seconds``.
+        repeat), their ``median`` and ``mean``, the ``published_mm`` figure, and ``seconds``.
     """
     seed = _seed(seed)
     chain = _chain(chain, seed)
@@ -1806,9 +1814,10 @@ def joint_error_study(*, chain: ChainSimulator | None = None, joint_errors_deg=(
     out = {"joint_error_deg": levels, "repeats": repeats, "objects": {}}
     for n in names:
         vals = per[n]
+        rows = [[v for v in row if v is not None] for row in vals]
         out["objects"][n] = {"max_deviation_mm": vals,
-                             "mean": [float(np.mean([v for v in row if v is not None])) if any(
-                                 v is not None for v in row) else None for row in vals],
+                             "median": [float(np.median(r)) if r else None for r in rows],
+                             "mean": [float(np.mean(r)) if r else None for r in rows],
                              "published_mm": PUBLISHED_DEVIATION_MM.get(n)}
     out["seconds"] = time.perf_counter() - t0
     return _jsonable(out)
@@ -1976,7 +1985,7 @@ def _draw_joint_error(ax, study: dict) -> None:
             vals = [v for v in row if v is not None]
             ax.plot([lv] * len(vals), vals, "o", color=color, alpha=0.5, ms=4)
         label = f"{name} (except corners)" if name == "box" else name
-        ax.plot(levels, np.array(o["mean"], dtype=float), "-", color=color, label=label)
+        ax.plot(levels, np.array(o["median"], dtype=float), "-", color=color, label=f"{label}, median")
         if o.get("published_mm") is not None:
             ax.axhline(o["published_mm"], color=color, ls=":", lw=1)
             ax.text(levels.max(), o["published_mm"], f" published {name} {o['published_mm']:g} mm", color=color,

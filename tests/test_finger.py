@@ -248,6 +248,15 @@ def test_contour_tracing_logic():
     json.dumps(res, allow_nan=False)
 
 
+def test_table_touch_is_not_a_contour_point():
+    # seed 4: one move sags the finger with joint errors until the table pushes up (a known case)
+    r = fg.contour_tracing(chain=PerfectChain(), objects=("cylinder",), joint_error_deg=1.0, seed=4,
+                           progress=False)["objects"]["cylinder"]
+    assert r["table_touches"] >= 1 and r["reached_end"]
+    assert r["max_deviation_mm"] < 6.0  # a table point recorded as the wall would be ~20 mm off
+    assert np.all(np.abs(np.asarray(r["contacts"])[:, 0] - 170.0) < 30.0)
+
+
 def test_joint_error_study_separates_sensing_from_positioning():
     base = fg.contour_tracing(chain=PerfectChain(), objects=("cylinder", "box"), span=8.0, progress=False)
     st = fg.joint_error_study(chain=PerfectChain(), joint_errors_deg=(0.0, 1.0), repeats=2, span=8.0,
