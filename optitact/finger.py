@@ -1592,7 +1592,10 @@ def _trace_one(obj, chain: ChainSimulator, finger: Finger, *, start_y: float, en
                 break
             c = c - n_in * retreat + d * step
         else:
-            if travel >= retreat + step:
+            if not contacts and travel >= gap + 4.0 * (retreat + step):
+                failure, lost = "the object was not found on the first approach", True
+                break
+            if contacts and travel >= retreat + step:  # the first approach goes on until it touches
                 turns += 1
                 n_turns += 1
                 if turns > 4:
@@ -1689,7 +1692,9 @@ def contour_tracing(*, chain: ChainSimulator | None = None, objects=("cylinder",
     2. *Lift* so that the lowest feeler clears the table by ``lift``.
     3. *Trace* in that horizontal plane, moving the dome centre with RMRC:
        approach the object in ``approach_step`` increments along the
-       inward direction until an element reads 0.3 N; then record the
+       inward direction until an element reads 0.3 N (the first approach,
+       from 4 mm clear, goes on until it touches, up to 4 mm plus four
+       square-search sides); then record the
        contact point (the loaded feeler's tip, moved out by its estimated
        indentation along the estimated force), take the estimated force's
        horizontal direction as the surface normal, *retreat* ``retreat`` mm

@@ -248,6 +248,20 @@ def test_contour_tracing_logic():
     json.dumps(res, allow_nan=False)
 
 
+def test_first_approach_goes_on_until_it_touches(monkeypatch):
+    # starting 8 mm clear is more than one square-search side (retreat 2 + step 5 mm)
+    opts = dict(step=5.0, approach_step=1.0, retreat=2.0, contact_threshold=0.3, table_threshold=0.2, lift=5.0,
+                stiffness=0.5, feeler_height=1.0, max_frames=80, corner_margin=5.0)
+    box = fg.Box(center=(188.0, 0.0), size=(40.0, 40.0), angle_deg=45.0)
+    r = fg._trace_one(box, PerfectChain(), Finger(), start_y=-8.0, end_y=8.0, first_index=0, gap=8.0, **opts)
+    assert not r["lost"] and r["reached_end"] and r["n_contacts"] >= 4
+    start = fg._start_point
+    monkeypatch.setattr(fg, "_start_point", lambda *a: (start(*a)[0] - 60.0, start(*a)[1]))  # 68 mm clear
+    far = fg._trace_one(box, PerfectChain(), Finger(), start_y=-8.0, end_y=8.0, first_index=0, gap=8.0, **opts)
+    assert far["lost"] and far["failure"] == "the object was not found on the first approach"
+    assert far["n_contacts"] == 0 and np.ptp(np.asarray(far["path"])[:, 1]) == 0  # straight in, no turns
+
+
 def test_table_touch_is_not_a_contour_point():
     # seed 4: one move sags the finger with joint errors until the table pushes up (a known case)
     r = fg.contour_tracing(chain=PerfectChain(), objects=("cylinder",), joint_error_deg=1.0, seed=4,
