@@ -254,13 +254,15 @@ class Calibration:
                 design = np.concatenate([design, s[:, None] * u / u_scale[e]], axis=1)
             lo = np.r_[np.zeros(_G_TERMS), np.full(design.shape[1] - _G_TERMS, -np.inf)]
             sol = lsq_linear(design, fe[:, 2], bounds=(lo, np.inf), method="bvls")
-            g_c[e] = sol.x[:_G_TERMS]
+            # BVLS can return a bound-active coefficient a rounding error below 0 (-5.6e-17 seen).
+            g_c[e] = np.maximum(sol.x[:_G_TERMS], 0.0)
             gu[e] = sol.x[_G_TERMS:] if model == "coupled" else 0.0
-            fz_hat = np.maximum(design @ sol.x, 0.0)
+            fz_hat = np.maximum(design @ np.r_[g_c[e], sol.x[_G_TERMS:]], 0.0)
             if model == "ohka":
                 tt = (u / u_scale[e]).reshape(-1)
                 a = np.stack([tt, tt**3], axis=-1)
-                f_c[e] = lsq_linear(a, fe[:, :2].reshape(-1), bounds=(0.0, np.inf), method="bvls").x
+                f_c[e] = np.maximum(lsq_linear(a, fe[:, :2].reshape(-1), bounds=(0.0, np.inf), method="bvls").x,
+                                    0.0)
                 shear = _f_ohka(u / u_scale[e], f_c[e])
             else:
                 fzp = np.maximum(fz_hat, 1e-9)

@@ -751,7 +751,7 @@ def wire_shape(values, *, direction: str | None = None, pitch_mm: float = 3.55) 
     >>> import numpy as np
     >>> img = np.zeros((5, 5)); img[1] = 1.0          # a straight wire along row 1
     >>> a, b, c, direction = wire_shape(img)
-    >>> direction, round(a, 9), round(b, 9), round(c, 9)
+    >>> direction, round(a, 9) + 0.0, round(b, 9) + 0.0, round(c, 9)   # + 0.0: no signed zeros
     ('horizontal', 0.0, 0.0, -3.55)
     """
     v = _image(values)
