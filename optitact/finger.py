@@ -975,33 +975,33 @@ def _local_forces(sensor: DomeSensor, world: np.ndarray, rotations: np.ndarray) 
     return np.einsum("nij,tnj->tni", sensor.element_frames, f_s) * sign
 
 
-def _follow(finger: Finger, targets: np.ndarray, theta0, *, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Joint angles (T, 3) and sensor rotations (T, 3, 3) along tool targets (RMRC, warm-started)."""
-    th = np.asarray(theta0, float)
-    thetas, rots = [], []
-    for p in targets:
-        th = finger.rmrc(p, th, z=z).theta
-        thetas.append(th)
-        rots.append(finger.sensor_pose(th, z=z)[0])
-    return np.array(thetas), np.array(rots)
+def _follow(finger: Finger, targets: np.ndarray, theta0, *, z0: float = 0.0,
+            lean: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor rotations (T, 3, 3) and z-stage positions (T,) along tool targets (RMRC, warm-started).
 
-
-def _follow_lean(finger: Finger, targets: np.ndarray, lean: float, theta0, z0: float):
-    """Joint angles (T, 3), sensor rotations (T, 3, 3) and stage positions (T,) holding a lean along +x."""
+    With ``lean`` (deg) the z-stage is a fourth axis holding the sensor's lean along +x
+    (:meth:`Finger.rmrc_lean`), and the finger first walks to the first target in 2 mm steps;
+    without it the stage stays at ``z0``.
+    """
     th, z = np.asarray(theta0, float), float(z0)
-    here = finger.forward(th, z=z)
-    n_walk = int(np.ceil(np.linalg.norm(targets[0] - here) / 2.0))
-    for p in here + np.outer(np.arange(1, n_walk) / n_walk, targets[0] - here):  # walk to the start
+
+    def reach(p):
+        if lean is None:
+            return finger.rmrc(p, th, z=z).theta, z
         r = finger.rmrc_lean(p, lean, th, z0=z)
-        th, z = r.theta, r.z
-    thetas, rots, stage = [], [], []
+        return r.theta, r.z
+
+    if lean is not None:
+        here = finger.forward(th, z=z)
+        n_walk = int(np.ceil(np.linalg.norm(targets[0] - here) / 2.0))
+        for p in here + np.outer(np.arange(1, n_walk) / n_walk, targets[0] - here):
+            th, z = reach(p)
+    rots, stage = [], []
     for p in targets:
-        r = finger.rmrc_lean(p, lean, th, z0=z)
-        th, z = r.theta, r.z
-        thetas.append(th)
+        th, z = reach(p)
         rots.append(finger.sensor_pose(th, z=z)[0])
         stage.append(z)
-    return np.array(thetas), np.array(rots), np.array(stage)
+    return np.array(rots), np.array(stage)
 
 
 #: Joint angles (rad) with the sensor axis pointing straight down (pitch -90 deg).
@@ -1155,6 +1155,7 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
     start = finger.rmrc_lean(finger.forward(guess), lean, guess)
     theta_c, z_c, apex0 = start.theta, start.z, start.position
     runs = []
+    paths = {}  # the stroke depends on the speed only: one RMRC path per speed
     cases = [(m, v) for m in frictions for v in speeds]
     index = 0
     for k, (mu, v) in enumerate(tqdm(cases, desc="surface scanning", unit="run", file=sys.stderr,
@@ -1163,9 +1164,10 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
         mu_k = sliding_friction(mu, v, coefficient=speed_coefficient)
         prof = _scan_profile(mu_k, v, fn0, rate, slide_time, rng)
         n = len(prof["t"])
-        length = v * slide_time
-        targets = apex0 + np.outer(prof["x"] - length / 2.0, [1.0, 0.0, 0.0])
-        _, rots, stage = _follow_lean(finger, targets, lean, theta_c, z_c)
+        if v not in paths:
+            targets = apex0 + np.outer(prof["x"] - v * slide_time / 2.0, [1.0, 0.0, 0.0])
+            paths[v] = _follow(finger, targets, theta_c, z0=z_c, lean=lean)
+        rots, stage = paths[v]
         world = np.zeros((n, sensor.n_elements, 3))
         world[:, 0, 0] = -prof["ft"]  # friction opposes the apex's motion (+x)
         world[:, 0, 2] = prof["fn"]
@@ -1412,7 +1414,7 @@ def slip_experiment(*, chain: ChainSimulator | None = None, rectangle=(30.0, 20.
     fn = fn0 * (1.0 + _ar1(rng, n, 0.02, 0.5))
     apex0 = finger.forward(POSE_DOWN)
     targets = apex0 + np.concatenate([mot["xy"] - [w / 2, h / 2], np.zeros((n, 1))], axis=1)
-    _, rots = _follow(finger, targets, POSE_DOWN)
+    rots, _ = _follow(finger, targets, POSE_DOWN)
     world = np.zeros((n, sensor.n_elements, 3))
     world[:, 0, :2] = -shear[:, None] * direction
     world[:, 0, 2] = fn
@@ -1810,10 +1812,8 @@ def joint_error_study(*, chain: ChainSimulator | None = None, joint_errors_deg=(
             else:
                 res = contour_tracing(chain=chain, objects=objects, joint_error_deg=level,
                                       seed=seed + 1000 * r, progress=progress, **trace_options)
-            for n in names:
-                o = res["objects"].get(n, {})
-                key = "max_deviation_except_corners_mm" if len(o.get("corners", [])) else "max_deviation_mm"
-                runs[n].append(o.get(key))
+            for n in names:  # without corners this is the plain largest deviation
+                runs[n].append(res["objects"].get(n, {}).get("max_deviation_except_corners_mm"))
         for n in names:
             per[n].append(runs[n])
     out = {"joint_error_deg": levels, "repeats": repeats, "objects": {}}
