@@ -74,3 +74,23 @@ def seed_value(seed, name: str = "seed") -> int | None:
     if seed is None:
         return None
     return integer(seed, name, minimum=0)
+
+
+def check_keys(d, allowed, what: str, *, required=()) -> dict:
+    """Check a dict read from a file: a mapping whose keys are among ``allowed``.
+
+    Unknown keys are an :class:`InputError` listing them and the valid ones;
+    so are missing ``required`` keys; a non-mapping is a TypeError.
+    """
+    from collections.abc import Mapping
+
+    if not isinstance(d, Mapping):
+        raise TypeError(f"{what} must be a dict, got {type(d).__name__}")
+    allowed = set(allowed)
+    unknown = sorted(set(map(str, d)) - allowed)
+    if unknown:
+        raise InputError(f"{what}: unknown key(s) {unknown}; valid: {sorted(allowed)}")
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise InputError(f"{what}: missing key(s) {missing}")
+    return dict(d)

@@ -6,7 +6,7 @@ catch ``ValueError`` or ``TypeError`` keep working.
 
 from __future__ import annotations
 
-__all__ = ["OptitactError", "ShapeError", "InputError", "RenderError"]
+__all__ = ["OptitactError", "ShapeError", "InputError", "RenderError", "MissingExtraError"]
 
 
 class OptitactError(Exception):
@@ -23,3 +23,7 @@ class InputError(OptitactError, ValueError):
 
 class RenderError(OptitactError, RuntimeError):
     """Mitsuba could not be set up or failed while rendering."""
+
+
+class MissingExtraError(OptitactError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it."""

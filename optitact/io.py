@@ -9,19 +9,67 @@ ignored.
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError, ShapeError
 
-__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter"]
+__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
+           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
+    """Write a file atomically: ``write(tmp)`` fills a temporary file beside ``path``, then it is renamed.
+
+    A reader sees the old file or the complete new one, never half of it; if
+    ``write`` raises (or the process is killed) ``path`` is untouched and the
+    temporary file is removed (or left as ``.<name>.<pid>.tmp``, never read).
+    The parent folder is created if needed. The temporary file keeps
+    ``path``'s suffix, so writers that choose the format by extension work.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic_write`)."""
+    return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def atomic_write_png_figure(fig, path: str | os.PathLike, *, dpi: int = 110) -> Path:
+    """Save a matplotlib figure as PNG at ``path`` atomically (:func:`atomic_write`)."""
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
+
+
+def json_fingerprint(obj, n: int = 16) -> str:
+    """The first ``n`` hex digits of the SHA-256 of ``obj`` as sorted, compact JSON.
+
+    Equal settings give equal fingerprints on every machine and run (keys
+    sorted, floats written by ``repr``).
+
+    Examples
+    --------
+    >>> json_fingerprint({"b": 1, "a": [1.0, 2]}) == json_fingerprint({"a": [1.0, 2], "b": 1})
+    True
+    """
+    key = json.dumps(obj, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(key.encode()).hexdigest()[:n]
 
 
 def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
