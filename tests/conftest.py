@@ -8,6 +8,11 @@ test, so they find the quick study results and tables in the session's cache.
 from __future__ import annotations
 
 import pytest
+from hypothesis import settings
+
+# A busy machine is slow, not wrong: no per-example deadline anywhere in the suite.
+settings.register_profile("optitact", deadline=None)
+settings.load_profile("optitact")
 
 
 @pytest.fixture(autouse=True, scope="session")

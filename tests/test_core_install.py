@@ -51,7 +51,7 @@ FRAMES = textwrap.dedent("""
 
 def _run(code: str, tmp_path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", BLOCKER + code], capture_output=True, text=True,
-                          cwd=tmp_path, timeout=600)
+                          cwd=tmp_path)
 
 
 def test_blocker_really_blocks(tmp_path):
