@@ -35,7 +35,7 @@ from ..errors import InputError
 from ..sources import Indenter, Scenario, register_source
 
 __all__ = ["fraction", "range_pair", "check_config", "unit_gains", "noise_rng", "check_scenario",
-           "TaxelSource"]
+           "freeze_fields", "TaxelSource"]
 
 
 def fraction(value, name: str, *, upper: float = 1.0, closed: bool = False) -> float:
@@ -155,6 +155,14 @@ def check_scenario(scenario, source: str, shapes: tuple[str, ...], *, extra: dic
     if drive not in (None, "depth", "force"):
         raise InputError(f"drive must be 'depth', 'force' or None, got {drive!r}")
     return ind, {k: scenario.extra.get(k, v) for k, v in allowed.items()}
+
+
+def freeze_fields(obj, **arrays: np.ndarray) -> None:
+    """Set each array as a read-only copy on the frozen dataclass ``obj`` (in its ``__post_init__``)."""
+    for name, arr in arrays.items():
+        arr = np.array(arr, copy=True)
+        arr.setflags(write=False)
+        object.__setattr__(obj, name, arr)
 
 
 class TaxelSource:

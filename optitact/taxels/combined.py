@@ -36,6 +36,7 @@ import numpy as np
 from .._validate import finite, integer, positive, real_array, seed_value
 from ..errors import InputError, ShapeError
 from ..sources import Indenter, Layout, Scenario, TactileSource
+from .base import freeze_fields
 from .piezo16 import Piezo16
 
 __all__ = ["trace", "tracing_direction", "radial_line", "combined_distribution", "features", "WidthClassifier",
@@ -331,10 +332,7 @@ class WidthClassifier:
                              f"{m.shape} and {t.shape}")
         if np.any(np.diff(m) < 0) or np.any(np.diff(t) < 0):
             raise InputError("mean_widths and thresholds must be non-decreasing")
-        for name, arr in (("diameters", d), ("mean_widths", m), ("thresholds", t)):
-            arr = arr.copy()
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+        freeze_fields(self, diameters=d, mean_widths=m, thresholds=t)
 
     @classmethod
     def fit(cls, widths, diameters) -> WidthClassifier:

@@ -2,6 +2,8 @@
 
 import doctest
 import math
+import subprocess
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,3 +120,14 @@ def test_bent_wire_and_overlap():
         surface_height(Indenter("point"), 0.0, 0.0, 0.0, 0.0)
     with pytest.raises(TypeError, match="indenter must be an Indenter"):
         surface_height("sphere", 0.0, 0.0, 0.0, 0.0)
+
+
+def test_taxels_import_no_optional_dependency_and_no_study():
+    code = ("import sys, optitact.taxels, optitact.sources as s\n"
+            "s.make_source('piezo16'), s.make_source('thread8')\n"
+            "import optitact.taxels.combined, optitact.taxels.grasp, optitact.taxels.dtw\n"
+            "heavy = ('sklearn', 'dtaidistance', 'matplotlib')\n"
+            "print(sorted(m for m in sys.modules\n"
+            "             if m.split('.')[0] in heavy or m.startswith('optitact.studies')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
