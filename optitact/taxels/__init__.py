@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import importlib
 
-_MODULES = ("tracing", "palpation", "optopad", "fingertip")
+_MODULES = ("tracing", "palpation", "opto5", "fingertip25")
 
 for _name in _MODULES:
     try:
