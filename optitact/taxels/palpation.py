@@ -54,7 +54,9 @@ import numpy as np
 
 from .._validate import finite, integer, positive, real_array, seed_value
 from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario, register_source
+from ..sources import Indenter, Layout, Scenario
+from .base import TaxelSource, fraction, noise_rng, unit_gains
+from .indenter import surface_height
 
 __all__ = [
     "Thread8Config", "Thread8", "SUPPORTED_SHAPES", "PalpationObject", "OBJECTS", "GraspProtocol",
@@ -69,13 +71,6 @@ SUPPORTED_SHAPES = ("sphere", "cylinder", "box", "flat")
 FEATURES = ("mu", "sigma", "mu+sigma")
 #: Jaws of the distance metrics: left, right, both (sum of the normalised per-jaw distances).
 SENSORS = ("left", "right", "both")
-
-
-def _fraction(value, name: str, *, upper: float = 1.0) -> float:
-    v = positive(value, name, allow_zero=True)
-    if v >= upper:
-        raise InputError(f"{name} must be in [0, {upper:g}), got {value!r}")
-    return v
 
 
 # ==== the sensor ========================================================================================
@@ -125,8 +120,8 @@ class Thread8Config:
             positive(getattr(self, name), name)
         for name in ("sensitivity_spread", "noise_v"):
             positive(getattr(self, name), name, allow_zero=True)
-        _fraction(self.creep_fraction, "creep_fraction")
-        _fraction(self.hysteresis, "hysteresis", upper=0.5)
+        fraction(self.creep_fraction, "creep_fraction")
+        fraction(self.hysteresis, "hysteresis", upper=0.5)
         if self.r_pressed_ohm >= self.r_free_ohm:
             raise InputError(f"r_pressed_ohm must be < r_free_ohm = {self.r_free_ohm:g}, "
                              f"got {self.r_pressed_ohm!r}")
@@ -141,7 +136,7 @@ class Thread8Config:
         return 1e3 * self.pad_modulus_mpa / self.pad_thickness_mm
 
 
-class Thread8:
+class Thread8(TaxelSource):
     r"""Simulated 8×8 piezoresistive thread-electrode array (source ``"thread8"``).
 
     Parameters
@@ -200,17 +195,15 @@ class Thread8:
     """
 
     name = "thread8"
+    config_type = Thread8Config
+    shapes = SUPPORTED_SHAPES
 
     def __init__(self, config: Thread8Config | None = None) -> None:
-        if config is None:
-            config = Thread8Config()
-        if not isinstance(config, Thread8Config):
-            raise TypeError(f"config must be a Thread8Config, got {type(config).__name__}")
-        self.config = config
-        c = config
+        super().__init__(config)
+
+    def _setup(self, c: Thread8Config) -> None:
         rng = np.random.default_rng(c.unit_seed)
-        self.sensitivity = np.exp(c.sensitivity_spread * rng.standard_normal((c.rows, c.cols)))
-        self.sensitivity.setflags(write=False)
+        self.sensitivity = unit_gains(rng, (c.rows, c.cols), c.sensitivity_spread)
         self._sub = int(round(c.pitch_mm / c.grid_mm))
         ny, nx = c.rows * self._sub, c.cols * self._sub
         gy = (np.arange(ny) - (ny - 1) / 2) * c.grid_mm
@@ -242,26 +235,7 @@ class Thread8:
     # ---- contact ---------------------------------------------------------------------------------
     def _heights(self, ind: Indenter, x, y, ang) -> np.ndarray:
         """Object surface above its crest on the grid, (n, N) mm (inf where it cannot touch)."""
-        n = x.size
-        if ind.shape == "flat":
-            return np.zeros((n, self._gx.size))
-        dx = self._gx[None, :] - x[:, None]
-        dy = self._gy[None, :] - y[:, None]
-        if ind.shape == "sphere":
-            r2 = dx * dx + dy * dy
-            along = None
-        else:
-            c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
-            along = dx * c + dy * s
-            r2 = (dy * c - dx * s) ** 2
-        rad = ind.size_mm
-        if ind.shape == "box":
-            h = np.where(r2 <= rad * rad, 0.0, np.inf)
-        else:
-            h = np.where(r2 < rad * rad, rad - np.sqrt(np.clip(rad * rad - r2, 0.0, None)), np.inf)
-        if along is not None and math.isfinite(ind.length_mm):
-            h = np.where(np.abs(along) <= ind.length_mm / 2, h, np.inf)
-        return h
+        return surface_height(ind, self._gx, self._gy, x, y, ang)
 
     def _stiffness(self, ind: Indenter) -> tuple[float, float]:
         """Series areal stiffness (kPa/mm) and the plastic set fraction r."""
@@ -281,14 +255,7 @@ class Thread8:
         return k * umax * np.clip((u - r * umax) / ((1.0 - r) * safe), 0.0, 1.0)
 
     def _check(self, scenario: Scenario) -> Indenter:
-        if not isinstance(scenario, Scenario):
-            raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
-        ind = scenario.indenter
-        if ind.shape not in SUPPORTED_SHAPES:
-            raise InputError(f"the thread8 source simulates indenters {SUPPORTED_SHAPES}, got {ind.shape!r}")
-        if scenario.extra:
-            raise InputError(f"unknown Scenario.extra key(s) {sorted(scenario.extra)} for thread8; valid: []")
-        return ind
+        return self.check_scenario(scenario)[0]
 
     def contact(self, scenario: Scenario) -> dict[str, np.ndarray]:
         """Noise-free contact state per sample.
@@ -478,10 +445,9 @@ class Thread8:
         InputError
             For an unsupported indenter, ``extra`` keys or an unreachable force.
         """
-        seed = seed_value(seed)
+        rng = noise_rng(seed)
         state = self.contact(scenario)
         v = self.voltage(state["taxel_kpa"], scenario.t_s)
-        rng = np.random.default_rng(seed)
         v = v + self.config.noise_v * rng.standard_normal(v.shape)
         dtype = np.uint8 if self.config.adc_bits <= 8 else np.uint16
         return np.clip(np.rint(self.counts(v)), 0, self.full_scale).astype(dtype)
@@ -574,7 +540,7 @@ class GraspProtocol:
         for name in ("hold_s", "offset_mm"):
             positive(getattr(self, name), name, allow_zero=True)
         integer(self.n_steps, "n_steps", minimum=1)
-        _fraction(self.max_precontact, "max_precontact")
+        fraction(self.max_precontact, "max_precontact")
         arr = real_array(self.clearance_mm, "clearance_mm")
         if arr.shape != (2,) or not np.all(np.isfinite(arr)) or not 0 < arr[0] <= arr[1]:
             raise InputError(f"clearance_mm must be (low, high) with 0 < low <= high, "
@@ -1272,4 +1238,4 @@ def plot_experiment(result: dict, path) -> None:
     fig.savefig(path, dpi=110)
 
 
-register_source("thread8", Thread8Config, Thread8)
+Thread8.register()

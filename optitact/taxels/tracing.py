@@ -58,7 +58,9 @@ import numpy as np
 
 from .._validate import finite, integer, positive, real_array, seed_value
 from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario, TactileSource, register_source
+from ..sources import Indenter, Layout, Scenario, TactileSource
+from .base import TaxelSource, noise_rng, unit_gains
+from .indenter import overlap, surface_height
 
 __all__ = [
     "Piezo16Config", "Piezo16", "SUPPORTED_SHAPES", "FINGER_PAD_MASK", "unit_voltage", "trace",
@@ -220,7 +222,7 @@ def _kernel(h: float, g: float, cutoff: float) -> np.ndarray:
     return k
 
 
-class Piezo16:
+class Piezo16(TaxelSource):
     r"""Simulated distributed piezoresistive finger pad (source ``"piezo16"``).
 
     Parameters
@@ -269,15 +271,16 @@ class Piezo16:
     """
 
     name = "piezo16"
+    config_type = Piezo16Config
+    shapes = SUPPORTED_SHAPES
+    drive = "depth"
+    drive_note = "; force_n is not modelled (the law is written in compression, not force)"
 
     def __init__(self, config: Piezo16Config | None = None) -> None:
-        if config is None:
-            config = Piezo16Config()
-        if not isinstance(config, Piezo16Config):
-            raise TypeError(f"config must be a Piezo16Config, got {type(config).__name__}")
-        self.config = c = config
-        rng = np.random.default_rng(c.unit_seed)
-        gain = np.exp(c.unit_gain_spread * rng.standard_normal(c.grid)) * c.mask_array
+        super().__init__(config)
+
+    def _setup(self, c: Piezo16Config) -> None:
+        gain = unit_gains(np.random.default_rng(c.unit_seed), c.grid, c.unit_gain_spread) * c.mask_array
         gain.setflags(write=False)
         self.unit_gain = gain
         g = c.grid_mm
@@ -304,16 +307,7 @@ class Piezo16:
                       rate_hz=1.0 / c.sample_period_s, mask=c.mask_array)
 
     def _check(self, scenario: Scenario) -> Indenter:
-        if not isinstance(scenario, Scenario):
-            raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
-        ind = scenario.indenter
-        if ind.shape not in SUPPORTED_SHAPES:
-            raise InputError(f"the piezo16 source simulates indenters {SUPPORTED_SHAPES}, got {ind.shape!r}")
-        if scenario.extra:
-            raise InputError(f"unknown Scenario.extra key(s) {sorted(scenario.extra)} for piezo16; valid: []")
-        if scenario.depth_mm is None:
-            raise InputError("the piezo16 source needs depth_mm (pressing depth); force_n is not modelled "
-                             "(the law is written in compression, not force)")
+        ind, _ = self.check_scenario(scenario)
         if not math.isinf(ind.stiffness_n_per_mm):
             raise InputError(f"the piezo16 source simulates rigid indenters (stiffness_n_per_mm = inf), got "
                              f"{ind.stiffness_n_per_mm!r}")
@@ -327,23 +321,7 @@ class Piezo16:
         """Surface indentation u (mm) on the padded sub-grid for one pose."""
         if depth <= 0:
             return np.zeros((self._y.size, self._x.size))
-        if ind.shape == "flat":
-            return np.full((self._y.size, self._x.size), depth)
-        dx = self._x[None, :] - x0
-        dy = self._y[:, None] - y0
-        rad = ind.size_mm
-        if ind.shape == "sphere":
-            r2 = dx * dx + dy * dy
-            along = None
-        else:
-            c, s = math.cos(ang), math.sin(ang)
-            along = dx * c + dy * s
-            r2 = (dy * c - dx * s) ** 2
-        u = depth - (rad - np.sqrt(np.clip(rad * rad - r2, 0.0, None)))
-        u = np.where(r2 < rad * rad, np.clip(u, 0.0, None), 0.0)
-        if along is not None and math.isfinite(ind.length_mm):
-            u = np.where(np.abs(along) <= ind.length_mm / 2, u, 0.0)
-        return u
+        return overlap(depth, surface_height(ind, self._x[None, :], self._y[:, None], x0, y0, ang))
 
     def compression(self, scenario: Scenario) -> dict[str, np.ndarray]:
         """Pressed area fraction and compression of every electrode, noise-free.
@@ -427,12 +405,12 @@ class Piezo16:
         InputError
             See :meth:`compression`.
         """
-        seed = seed_value(seed)
+        rng = noise_rng(seed)
         c = self.config
         state = self.compression(scenario)
         v = c.gain_v_per_mm * self.unit_gain * state["mean_compression_mm"] - c.offset_v
         if c.noise_v > 0:
-            v = v + c.noise_v * np.random.default_rng(seed).standard_normal(v.shape)
+            v = v + c.noise_v * rng.standard_normal(v.shape)
         return np.clip(v, 0.0, c.v_max) * c.mask_array
 
 
@@ -1085,4 +1063,4 @@ def plot_experiment(result: dict, path) -> None:
     fig.savefig(path, dpi=110)
 
 
-register_source("piezo16", Piezo16Config, Piezo16)
+Piezo16.register()
