@@ -26,8 +26,9 @@ import numpy as np
 
 from .._validate import finite, positive, real_array
 from ..errors import InputError, ShapeError
+from .base import check_config
 from .fingertip25 import (PLANE_AXIS, UNIT_PLANE, UNIT_SIDE, Fingertip25Config, check_unit_grid,
-                          fingertip_config, force_from_resistance)
+                          force_from_resistance)
 
 __all__ = ["plane_resultants", "decouple", "detection_ranges", "axis_ranges", "DecouplingMatrix",
            "repeatability_error"]
@@ -59,7 +60,8 @@ def plane_resultants(values, *, units: str = "N",
     Parameters
     ----------
     values : (..., 5, 5) array
-        Unit normal forces (N) or resistances (kΩ, converted by :func:`force_from_resistance`).
+        Unit normal forces (N) or resistances (kΩ, converted by
+        :func:`~optitact.taxels.fingertip25.force_from_resistance`).
     units : {"N", "kOhm"}
     config : Fingertip25Config, optional
         Plane angles and resistance law; defaults to ``Fingertip25Config()``.
@@ -68,7 +70,7 @@ def plane_resultants(values, *, units: str = "N",
     -------
     dict
         ``F1`` ... ``F5``, each of shape ``values.shape[:-2]``, N, along the
-        plane's axis (:data:`PLANE_AXIS`); float32 if ``values`` is.
+        plane's axis (:data:`~optitact.taxels.fingertip25.PLANE_AXIS`); float32 if ``values`` is.
 
     Raises
     ------
@@ -80,13 +82,13 @@ def plane_resultants(values, *, units: str = "N",
     Notes
     -----
     :math:`F_k = \cos\theta_k \sum_{i \in k} s_i f_i`, :math:`s_i = \pm 1`
-    the unit's side (:data:`UNIT_SIDE`). With one common reading
+    the unit's side (:data:`~optitact.taxels.fingertip25.UNIT_SIDE`). With one common reading
     :math:`F_s` on the + side this is the published
     :math:`F_1 = 8 F_s`, :math:`F_2 = 4 F_s \cos 77.25°`,
     :math:`F_3 = 2 F_s \cos 62.09°`, :math:`F_4 = 2 F_s \cos 46.47°`,
     :math:`F_5 = 3 F_s \cos 9.03°`.
     """
-    c = fingertip_config(config)
+    c = check_config(config, Fingertip25Config)
     f = _unit_values(values, units, c)
     cos_plane = np.cos(np.deg2rad(c.plane_angles_deg))
     return {f"F{k}": _float_out(cos_plane[k - 1] * np.sum(np.where(UNIT_PLANE == k, UNIT_SIDE * f, 0.0),
@@ -148,7 +150,7 @@ def detection_ranges(*, config: Fingertip25Config | None = None) -> dict[str, np
         (:math:`[F_{low}, F_{high}] \cdot n_k \cos\theta_k`; e.g. plane 2:
         0.1765–4.413 N, published as 0.17–4.41 N).
     """
-    c = fingertip_config(config)
+    c = check_config(config, Fingertip25Config)
     n = np.asarray(c.plane_units, dtype=float)
     ang = np.asarray(c.plane_angles_deg)
     factor = n * np.cos(np.deg2rad(ang))
@@ -165,7 +167,7 @@ def axis_ranges(*, config: Fingertip25Config | None = None) -> dict[str, tuple[f
         ``{"x": (low, high), "y": ..., "z": ...}`` in N; the x range holds for
         either sign, y and z only for positive values.
     """
-    c = fingertip_config(config)
+    c = check_config(config, Fingertip25Config)
     r = detection_ranges(config=c)
     out = {}
     for axis in ("x", "y", "z"):

@@ -34,13 +34,14 @@ from functools import cached_property
 
 import numpy as np
 
-from .._validate import finite, positive, real_array, seed_value
+from .._validate import finite, positive, real_array
 from ..errors import InputError, ShapeError
-from ..sources import Layout, Scenario, register_source
+from ..sources import INDENTER_SHAPES, Layout, Scenario
+from .base import TaxelSource, check_config, fraction, noise_rng
 
 __all__ = [
     "Fingertip25Config", "Fingertip25", "UNIT_PLANE", "UNIT_SIDE", "PLANE_AXIS", "PUBLISHED_PLANE_UNITS",
-    "resistance_law", "resistance_from_force", "force_from_resistance", "fingertip_config", "check_unit_grid",
+    "resistance_law", "resistance_from_force", "force_from_resistance", "check_unit_grid",
 ]
 
 #: Plane (1 ... 5) of each unit on the 5×5 readout grid; row 0 is the tip end, col 0 the −x side.
@@ -65,13 +66,6 @@ for _plane, _n in enumerate(PUBLISHED_PLANE_UNITS, start=1):
         raise RuntimeError(f"unit map disagrees with the published count of plane {_plane}")
 UNIT_PLANE.setflags(write=False)
 UNIT_SIDE.setflags(write=False)
-
-
-def _fraction(value, name: str, *, upper: float = 1.0, closed: bool = False) -> float:
-    v = positive(value, name, allow_zero=True)
-    if v > upper or (v == upper and not closed):
-        raise InputError(f"{name} must be in [0, {upper:g}{']' if closed else ')'}, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -107,8 +101,8 @@ class Fingertip25Config:
                      "unit_stiffness_n_per_mm"):
             positive(getattr(self, name), name)
         positive(self.noise_n, "noise_n", allow_zero=True)
-        _fraction(self.repeatability, "repeatability", upper=0.3)
-        _fraction(self.crosstalk, "crosstalk", closed=True)
+        fraction(self.repeatability, "repeatability", upper=0.3)
+        fraction(self.crosstalk, "crosstalk", closed=True)
         if self.pitch_mm < self.unit_diameter_mm:
             raise InputError(f"pitch_mm must be >= unit_diameter_mm = {self.unit_diameter_mm:g} (units may not "
                              f"overlap), got {self.pitch_mm!r}")
@@ -139,15 +133,6 @@ class Fingertip25Config:
                              f"got {self.resolution_n!r}")
 
 
-def fingertip_config(config) -> Fingertip25Config:
-    """``config``, or ``Fingertip25Config()`` for None; anything else is a TypeError."""
-    if config is None:
-        return Fingertip25Config()
-    if not isinstance(config, Fingertip25Config):
-        raise TypeError(f"config must be a Fingertip25Config, got {type(config).__name__}")
-    return config
-
-
 # ---- resistance law -----------------------------------------------------------------------------------
 def resistance_law(config: Fingertip25Config | None = None) -> tuple[float, float]:
     r"""Coefficients ``(a, b)`` of the power law :math:`R = a F^{-b}` through the two published points.
@@ -174,7 +159,7 @@ def resistance_law(config: Fingertip25Config | None = None) -> tuple[float, floa
     >>> round(a, 3), round(b, 4)
     (6.797, 1.0775)
     """
-    c = fingertip_config(config)
+    c = check_config(config, Fingertip25Config)
     b = math.log(c.r_low_kohm / c.r_high_kohm) / math.log(c.force_high_n / c.force_low_n)
     return c.r_low_kohm * c.force_low_n ** b, b
 
@@ -212,7 +197,7 @@ def force_from_resistance(resistance_kohm, *, config: Fingertip25Config | None =
     >>> round(float(force_from_resistance(1.2)), 9), float(force_from_resistance(1000.0))
     (5.0, 0.0)
     """
-    c = fingertip_config(config)
+    c = check_config(config, Fingertip25Config)
     r = finite(real_array(resistance_kohm, "resistance_kohm"), "resistance_kohm")
     if r.size and r.min() <= 0:
         raise InputError(f"resistance_kohm must be > 0, got minimum {r.min()}")
@@ -285,7 +270,7 @@ def check_unit_grid(values, name: str) -> np.ndarray:
 
 
 
-class Fingertip25:
+class Fingertip25(TaxelSource):
     r"""Simulated non-coplanar 25-unit piezoresistive fingertip (source ``"fingertip25"``).
 
     Parameters
@@ -302,7 +287,7 @@ class Fingertip25:
     (:data:`PLANE_AXIS`) and its unit normals make the published angle
     :math:`\theta_k` with that axis (0°, 77.25°, 62.09°, 46.47°, 9.03°), i.e.
     they are tilted :math:`90° - \theta_k` from the pad. That gives
-    8 + 2·(4 + 2) + 2 + 3 = 25 units (see :func:`decouple` for why).
+    8 + 2·(4 + 2) + 2 + 3 = 25 units (see :func:`~optitact.taxels.decoupling.decouple` for why).
 
     *Mechanics* (:meth:`unit_forces`). The design assumption of the
     published decoupling: each axis component of :math:`F` is carried by the
@@ -330,13 +315,17 @@ class Fingertip25:
     3-vector or (T, 3), normalised here; default +z) its direction in the
     fingertip frame. Depth-driven scenarios are refused; the indenter's shape,
     pose and stiffness are not used (the fingertip senses the resultant).
-    Grasps of objects use a contact model instead (:func:`grasp`).
+    Grasps of objects use a contact model instead
+    (:func:`optitact.studies.fingertip_objects.grasp`).
     """
 
     name = "fingertip25"
+    config_type = Fingertip25Config
+    shapes = INDENTER_SHAPES                # any: the fingertip senses the resultant only
+    extra = {"direction": (0.0, 0.0, 1.0)}
+    drive = "force"
 
-    def __init__(self, config: Fingertip25Config | None = None) -> None:
-        self.config = fingertip_config(config)
+    def _setup(self, config: Fingertip25Config) -> None:
         pos, normals = _unit_geometry(self.config)
         self._normals = normals
         self._positions = pos
@@ -405,7 +394,7 @@ class Fingertip25:
             raise ShapeError(f"unit_force_n must have shape (T, 5, 5) (or (T, ..., 5, 5) for several "
                              f"fingertips), got {f.shape}")
         t = _times(t_s, f.shape[0])
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed_value(seed))
+        rng = seed if isinstance(seed, np.random.Generator) else noise_rng(seed)
         return self._transduce(f, t, rng)
 
     def _transduce(self, f: np.ndarray, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -431,16 +420,8 @@ class Fingertip25:
 
     def force_vectors(self, scenario: Scenario) -> np.ndarray:
         """Contact force (T, 3), N, of a scenario: ``force_n`` times the unit ``extra["direction"]``."""
-        if not isinstance(scenario, Scenario):
-            raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
-        if scenario.force_n is None:
-            raise InputError("the fingertip25 source needs a force-driven scenario (force_n), got depth_mm")
-        extra = dict(scenario.extra)
-        direction = extra.pop("direction", (0.0, 0.0, 1.0))
-        if extra:
-            raise InputError(f"unknown Scenario.extra key(s) {sorted(extra)} for fingertip25; "
-                             "valid: ['direction']")
-        d = finite(real_array(direction, "direction"), "direction")
+        _, extra = self.check_scenario(scenario)
+        d = finite(real_array(extra["direction"], "direction"), "direction")
         n = scenario.n_frames
         if d.shape == (3,):
             d = np.broadcast_to(d, (n, 3))
@@ -459,7 +440,7 @@ class Fingertip25:
         InputError
             For a depth-driven scenario, unknown ``extra`` keys or a zero direction.
         """
-        rng = np.random.default_rng(seed_value(seed))
+        rng = noise_rng(seed)
         return self._transduce(self.unit_forces(self.force_vectors(scenario)), scenario.t_s, rng)
 
 
@@ -472,4 +453,4 @@ def _times(t_s, n: int) -> np.ndarray:
     return t
 
 
-register_source("fingertip25", Fingertip25Config, Fingertip25)
+Fingertip25.register()

@@ -26,15 +26,16 @@ Examples
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array, seed_value
+from .._validate import finite, integer, positive, real_array
 from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario, register_source
+from ..sources import Indenter, Layout, Scenario
+from .base import TaxelSource, fraction, noise_rng, range_pair, unit_gains
+from .indenter import overlap, surface_height
 
 __all__ = ["Opto5Config", "Opto5", "FINGER_DISTANCE_MAX", "SUPPORTED_SHAPES", "check_finger_distance",
            "grasp_scenario"]
@@ -43,20 +44,6 @@ __all__ = ["Opto5Config", "Opto5", "FINGER_DISTANCE_MAX", "SUPPORTED_SHAPES", "c
 FINGER_DISTANCE_MAX = 255
 #: Indenter shapes :class:`Opto5` simulates.
 SUPPORTED_SHAPES = ("wire", "cylinder", "sphere", "flat")
-
-
-def _fraction(value, name: str, *, upper: float = 1.0) -> float:
-    v = positive(value, name, allow_zero=True)
-    if v >= upper:
-        raise InputError(f"{name} must be in [0, {upper:g}), got {value!r}")
-    return v
-
-
-def _range_pair(value, name: str) -> tuple[float, float]:
-    arr = real_array(value, name)
-    if arr.shape != (2,) or not np.all(np.isfinite(arr)) or arr[0] > arr[1]:
-        raise InputError(f"{name} must be two finite numbers (low, high) with low <= high, got {value!r}")
-    return float(arr[0]), float(arr[1])
 
 
 @dataclass(frozen=True)
@@ -104,13 +91,13 @@ class Opto5Config:
             positive(getattr(self, name), name)
         for name in ("hysteresis", "repeatability", "gain_spread", "noise_v"):
             positive(getattr(self, name), name, allow_zero=True)
-        _fraction(self.hysteresis, "hysteresis", upper=0.5)
-        _fraction(self.repeatability, "repeatability", upper=0.3)
-        _fraction(self.flex, "flex")
+        fraction(self.hysteresis, "hysteresis", upper=0.5)
+        fraction(self.repeatability, "repeatability", upper=0.3)
+        fraction(self.flex, "flex")
         if self.pad_share > 1:
             raise InputError(f"pad_share must be in (0, 1], got {self.pad_share!r}")
-        object.__setattr__(self, "shape_range", _range_pair(self.shape_range, "shape_range"))
-        object.__setattr__(self, "offset_range_v", _range_pair(self.offset_range_v, "offset_range_v"))
+        object.__setattr__(self, "shape_range", range_pair(self.shape_range, "shape_range"))
+        object.__setattr__(self, "offset_range_v", range_pair(self.offset_range_v, "offset_range_v"))
         if self.offset_range_v[0] < 0 or self.offset_range_v[1] >= self.v_ref:
             raise InputError(f"offset_range_v must lie in [0, v_ref={self.v_ref}), got {self.offset_range_v}")
         span = (max(self.rows, self.cols) - 1) * self.pitch_mm
@@ -127,7 +114,7 @@ def _response_shape(u: np.ndarray, k: np.ndarray) -> np.ndarray:
     return np.where(small, u, -np.expm1(-ks * u) / ks)
 
 
-class Opto5:
+class Opto5(TaxelSource):
     r"""Simulated 5×5 optoelectronic taxel pad (source ``"opto5"``).
 
     Parameters
@@ -174,19 +161,17 @@ class Opto5:
     """
 
     name = "opto5"
+    config_type = Opto5Config
+    shapes = SUPPORTED_SHAPES
+    extra = {"curvature_per_mm": 0.0}
 
-    def __init__(self, config: Opto5Config | None = None) -> None:
-        if config is None:
-            config = Opto5Config()
-        if not isinstance(config, Opto5Config):
-            raise TypeError(f"config must be an Opto5Config, got {type(config).__name__}")
-        self.config = config
+    def _setup(self, config: Opto5Config) -> None:
         shape = (config.rows, config.cols)
         rng = np.random.default_rng(config.unit_seed)
-        self.gain = np.exp(config.gain_spread * rng.standard_normal(shape))
+        self.gain = unit_gains(rng, shape, config.gain_spread)
         self.shape_k = rng.uniform(*config.shape_range, size=shape)
         self.offset_v = rng.uniform(*config.offset_range_v, size=shape)
-        for arr in (self.gain, self.shape_k, self.offset_v):
+        for arr in (self.shape_k, self.offset_v):
             arr.setflags(write=False)
         n = int(round(config.pad_mm / config.grid_mm))
         g = (np.arange(n) - (n - 1) / 2) * (config.pad_mm / n)
@@ -254,39 +239,14 @@ class Opto5:
         return FINGER_DISTANCE_MAX * (1.0 - d / self.config.gap_open_mm)
 
     # ---- contact ---------------------------------------------------------------------------------
-    def _compression(self, shape: str, radius: float, length: float, x, y, ang, depth, kappa) -> np.ndarray:
-        """Pad compression (n, n_grid) mm after finger flex, for n poses."""
-        if shape == "flat":
-            delta = np.broadcast_to(depth[:, None], (depth.size, self._gx.size))
-        else:
-            dx = self._gx[None, :] - x[:, None]
-            dy = self._gy[None, :] - y[:, None]
-            if shape == "sphere":
-                r2 = dx * dx + dy * dy
-                along = None
-            else:
-                c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
-                along = dx * c + dy * s
-                n = -dx * s + dy * c - 0.5 * kappa[:, None] * along * along
-                r2 = n * n
-            h = radius - np.sqrt(np.clip(radius * radius - r2, 0.0, None))
-            delta = np.clip(depth[:, None] - h, 0.0, None)
-            if along is not None and math.isfinite(length):
-                delta = np.where(np.abs(along) <= length / 2, delta, 0.0)
-        return delta * self._flex[None, :]
+    def _compression(self, ind: Indenter, x, y, ang, depth, kappa) -> np.ndarray:
+        """Pad compression (n, n_grid) mm after finger flex, for n poses (:mod:`optitact.taxels.indenter`)."""
+        h = surface_height(ind, self._gx, self._gy, x, y, ang, curvature_per_mm=kappa)
+        return overlap(depth[:, None], h) * self._flex[None, :]
 
-    def _pose(self, scenario: Scenario):
-        if not isinstance(scenario, Scenario):
-            raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__}")
-        ind = scenario.indenter
-        if ind.shape not in SUPPORTED_SHAPES:
-            raise InputError(f"the opto5 source simulates indenters {SUPPORTED_SHAPES}, got {ind.shape!r}")
-        extra = dict(scenario.extra)
-        kappa = extra.pop("curvature_per_mm", 0.0)
-        if extra:
-            raise InputError(f"unknown Scenario.extra key(s) {sorted(extra)} for opto5; "
-                             "valid: ['curvature_per_mm']")
-        k = finite(real_array(kappa, "curvature_per_mm"), "curvature_per_mm")
+    def _pose(self, scenario: Scenario) -> tuple[Indenter, np.ndarray]:
+        ind, extra = self.check_scenario(scenario)
+        k = finite(real_array(extra["curvature_per_mm"], "curvature_per_mm"), "curvature_per_mm")
         if k.ndim == 0:
             k = np.full(scenario.n_frames, float(k))
         if k.shape != (scenario.n_frames,):
@@ -317,8 +277,7 @@ class Opto5:
 
     def _total_force(self, ind: Indenter, sc: Scenario, i: int, depth: float, kappa: np.ndarray) -> float:
         sl = slice(i, i + 1)
-        delta = self._compression(ind.shape, ind.size_mm, ind.length_mm, sc.x_mm[sl], sc.y_mm[sl],
-                                  sc.angle_rad[sl], np.array([depth]), kappa[sl])
+        delta = self._compression(ind, sc.x_mm[sl], sc.y_mm[sl], sc.angle_rad[sl], np.array([depth]), kappa[sl])
         return float(delta.sum() * self._cell_area * self._k_area)
 
     def contact(self, scenario: Scenario) -> dict[str, np.ndarray]:
@@ -339,8 +298,8 @@ class Opto5:
         active = np.flatnonzero(depth > 0)
         for start in range(0, active.size, 128):
             idx = active[start:start + 128]
-            delta = self._compression(ind.shape, ind.size_mm, ind.length_mm, scenario.x_mm[idx],
-                                      scenario.y_mm[idx], scenario.angle_rad[idx], depth[idx], kappa[idx])
+            delta = self._compression(ind, scenario.x_mm[idx], scenario.y_mm[idx], scenario.angle_rad[idx],
+                                      depth[idx], kappa[idx])
             grid = delta.reshape(idx.size, self._n_grid, self._n_grid)
             # einsum in two separable steps (no BLAS threads: these products are small)
             along_x = np.einsum("nij,cj->nic", grid, self._spot_x)
@@ -383,8 +342,7 @@ class Opto5:
         InputError
             For an unsupported indenter, unknown ``extra`` keys or an unreachable force.
         """
-        seed = seed_value(seed)
-        rng = np.random.default_rng(seed)
+        rng = noise_rng(seed)
         c = self.config
         state = self.contact(scenario)
         dv = self.response_v(state["taxel_force_n"])
@@ -425,4 +383,4 @@ def grasp_scenario(source: Opto5, indenter: Indenter, depth: float, *, n_base: i
     return Scenario(indenter, t_s=t, x_mm=x_mm, y_mm=y_mm, angle_rad=angle_rad, depth_mm=d, extra=extra)
 
 
-register_source("opto5", Opto5Config, Opto5)
+Opto5.register()
