@@ -104,7 +104,6 @@ def decoupling_study(source: Fingertip25 | None = None, *, n_train: int = 100, n
                        "calibrated": cal[:k].tolist()}}
 
 
-
 def repeated_loadings(source: Fingertip25 | None = None, *, levels_n=REPEAT_LEVELS_N, n_cycles: int = 10,
                       seed: int | None = None, hold_s: float = 1.0) -> np.ndarray:
     """Readings of the 8 pad units under repeated staircase loadings with a normal force.

@@ -38,7 +38,6 @@ def _float_out(arr: np.ndarray, like) -> np.ndarray:
     return arr.astype(np.float32) if np.asarray(like).dtype == np.float32 else arr
 
 
-
 _UNITS = ("N", "kOhm")
 
 
@@ -231,7 +230,6 @@ class DecouplingMatrix:
         """Forces (..., 3), N, from unit forces (..., 5, 5), N."""
         f = check_unit_grid(unit_force_n, "unit_force_n")
         return f.reshape(*f.shape[:-2], 25) @ self.matrix.T + self.offset
-
 
 
 def repeatability_error(samples, full_scale: float, *, z: float = 3.0) -> float:

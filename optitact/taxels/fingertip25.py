@@ -268,8 +268,6 @@ def check_unit_grid(values, name: str) -> np.ndarray:
     return arr
 
 
-
-
 class Fingertip25(TaxelSource):
     r"""Simulated non-coplanar 25-unit piezoresistive fingertip (source ``"fingertip25"``).
 
