@@ -17,9 +17,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from IPython.display import Image, display
 
-from optitact.sources import Indenter, Scenario, make_source, moments
 from optitact import studies
-from optitact.taxels import palpation, tracing
+from optitact.sources import Indenter, Scenario, make_source, moments
 
 work = Path(tempfile.mkdtemp())
 
@@ -53,13 +52,13 @@ plt.show()
 # the diameters.
 
 # %%
-res = tracing.experiment(seed=0, full=False, progress=False)
+res = studies.run("tracing", seed=0, size="quick")
 cls = res["classification"]
 print("pipe diameters (mm):", cls["classifier"][0]["diameter_mm"])
 for n, acc, resol in zip(cls["n_steps"], cls["accuracy"], cls["resolution_mm"], strict=True):
     print(f"{n:2d} tracing steps: diameter classification accuracy {acc:.0%}, "
-          f"smallest difference told apart reliably {resol:g} mm")
-tracing.plot_experiment(res, work / "tracing.png")
+          f"smallest difference told apart reliably {'-' if resol is None else f'{resol:g}'} mm")
+studies.save_plot("tracing", res, work / "tracing.png")
 display(Image(filename=str(work / "tracing.png")))
 
 # %% [markdown]
@@ -67,14 +66,14 @@ display(Image(filename=str(work / "tracing.png")))
 # frames' feature series and a k-nearest-neighbour vote recognise them (cross-validated).
 
 # %%
-res = palpation.experiment(seed=0, full=False, progress=False)
+res = studies.run("palpation", seed=0, size="quick")
 tab = res["table"]
 print(f"{len(res['objects'])} objects, {res['n_per_object']} grasps each, chance {res['chance']:.0%}")
 for i in range(len(tab["metric"])):
     if tab["k"][i] == 1:
         print(f"  {tab['metric'][i]:14s} k=1: recognition rate {tab['mean'][i]:.0%} "
               f"[{tab['ci_low'][i]:.0%}, {tab['ci_high'][i]:.0%}]")
-palpation.plot_experiment(res, work / "palpation.png")
+studies.save_plot("palpation", res, work / "palpation.png")
 display(Image(filename=str(work / "palpation.png")))
 
 # %% [markdown]

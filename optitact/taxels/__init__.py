@@ -1,11 +1,19 @@
 """Taxel-array tactile sensors as lower-dimension image sources.
 
+Each sensor is its model and transduction law on one shared base
+(:mod:`optitact.taxels.base`: config, seeds and scenario checks; one indenter
+geometry in :mod:`optitact.taxels.indenter`), plus reusable analyses; the
+published studies live in ``optitact.studies``. Importing this package
+imports no optional dependency (scikit-learn, dtaidistance and matplotlib are
+imported by the functions that need them).
+
 Importing this package registers every taxel sensor type with
 :func:`optitact.sources.register_source`:
 
-- ``"piezo16"``: distributed piezoresistive finger pad (16x16 grid, 204 units), active tracing
-  (:mod:`optitact.taxels.tracing`);
-- ``"thread8"``: 8x8 piezoresistive thread-electrode array, palpation (:mod:`optitact.taxels.palpation`);
+- ``"piezo16"``: distributed piezoresistive finger pad (16x16 grid, 204 units) (:mod:`optitact.taxels.piezo16`);
+  active tracing with it in :mod:`optitact.taxels.combined`;
+- ``"thread8"``: 8x8 piezoresistive thread-electrode array (:mod:`optitact.taxels.thread8`); grasps with
+  one on each gripper jaw in :mod:`optitact.taxels.grasp`, DTW and k-NN in :mod:`optitact.taxels.dtw`;
 - ``"opto5"``: 5x5 optoelectronic taxel pad, wire shape and diameter (:mod:`optitact.taxels.optopad`);
 - ``"fingertip25"``: non-coplanar 25-unit piezoresistive fingertip, 3-D force
   (:mod:`optitact.taxels.fingertip`).
@@ -15,7 +23,7 @@ from __future__ import annotations
 
 import importlib
 
-_MODULES = ("tracing", "palpation", "opto5", "fingertip25")
+_MODULES = ("piezo16", "thread8", "opto5", "fingertip25")
 
 for _name in _MODULES:
     try:

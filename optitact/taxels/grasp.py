@@ -1,0 +1,313 @@
+"""Palpating grasps: a parallel gripper with a :class:`~optitact.taxels.thread8.Thread8` on each jaw.
+
+An object catalogue (:data:`OBJECTS`, rigid block ... soft ball), a gripper
+protocol (:class:`GraspProtocol`: close until contact, squeeze five 1 mm
+steps, release five steps), one simulated grasp (:func:`grasp`) and the
+per-frame features of its frames, mean μ and standard deviation σ of the
+taxels (:func:`frame_features`, :func:`mu_sigma`).
+
+Convention: see :mod:`optitact.taxels.thread8`. The right jaw faces the left
+one, so an object at ``x`` on the left patch sits at ``-x`` on the right
+patch.
+
+Examples
+--------
+>>> [o.name for o in OBJECTS][:2]
+['rigid block', 'rigid cylinder']
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from .._validate import integer, positive, real_array, seed_value
+from ..errors import InputError
+from ..sources import Indenter, Layout, Scenario
+from .base import fraction
+from .thread8 import SUPPORTED_SHAPES, Thread8, Thread8Config
+
+__all__ = ["PalpationObject", "OBJECTS", "GraspProtocol", "Grasp", "grasp", "default_jaws", "frame_features",
+           "mu_sigma"]
+
+
+@dataclass(frozen=True)
+class PalpationObject:
+    """An object of the palpation study.
+
+    Parameters
+    ----------
+    name : str
+    indenter : Indenter
+        Its shape on the patch (``sphere``, ``cylinder``, ``box`` or ``flat``), size,
+        ``stiffness_n_per_mm`` and ``plasticity``.
+    width_mm : float
+        Its extent between the jaws, mm (where the jaws touch it).
+    """
+
+    name: str
+    indenter: Indenter
+    width_mm: float
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise TypeError(f"object name must be a non-empty string, got {self.name!r}")
+        if not isinstance(self.indenter, Indenter):
+            raise TypeError(f"indenter must be an Indenter, got {type(self.indenter).__name__}")
+        if self.indenter.shape not in SUPPORTED_SHAPES:
+            raise InputError(f"object indenter shape must be one of {SUPPORTED_SHAPES}, "
+                             f"got {self.indenter.shape!r}")
+        positive(self.width_mm, "width_mm")
+
+    def as_dict(self) -> dict:
+        """JSON-serialisable description (``inf`` stiffness as ``None``: rigid)."""
+        ind = self.indenter
+        return {"name": self.name, "shape": ind.shape, "size_mm": ind.size_mm,
+                "length_mm": None if math.isinf(ind.length_mm) else ind.length_mm,
+                "stiffness_n_per_mm": None if math.isinf(ind.stiffness_n_per_mm) else ind.stiffness_n_per_mm,
+                "plasticity": ind.plasticity, "width_mm": self.width_mm}
+
+
+def _obj(name, shape, size, width, *, k=math.inf, plasticity=0.0, length=math.inf):
+    return PalpationObject(name, Indenter(shape, size_mm=size, length_mm=length, stiffness_n_per_mm=k,
+                                          plasticity=plasticity), width)
+
+
+#: The ten objects, from a rigid block to a soft ball: shape, size (mm), contact stiffness
+#: (N/mm with a plate the size of the patch; rigid = inf), plasticity (0 elastic ... 1 plastic), width (mm).
+OBJECTS: tuple[PalpationObject, ...] = (
+    _obj("rigid block", "box", 15.0, 40.0),
+    _obj("rigid cylinder", "cylinder", 10.0, 20.0),
+    _obj("hard ball", "sphere", 25.0, 50.0),
+    _obj("wooden bar", "box", 5.0, 30.0, k=100.0, length=60.0),
+    _obj("plastic bottle", "cylinder", 30.0, 60.0, k=15.0, plasticity=0.1),
+    _obj("tennis ball", "sphere", 33.0, 66.0, k=12.0),
+    _obj("clay roll", "cylinder", 15.0, 30.0, k=8.0, plasticity=0.8),
+    _obj("paper cup", "cylinder", 35.0, 70.0, k=6.0, plasticity=0.5),
+    _obj("foam block", "box", 15.0, 50.0, k=4.0, plasticity=0.05),
+    _obj("soft ball", "sphere", 35.0, 70.0, k=2.0),
+)
+
+
+@dataclass(frozen=True)
+class GraspProtocol:
+    """How the parallel gripper palpates an object (both jaws move symmetrically).
+
+    The gripper starts ``clearance_mm`` (drawn per grasp) wider than the object
+    and closes at ``close_speed_mm_s`` until a taxel on either jaw reads
+    ``contact_dn`` above its free reading (noise-free) or the object is squeezed
+    by ``max_precontact`` of its width; it then closes ``n_steps`` steps of
+    ``step_mm`` at ``step_speed_mm_s``, holding ``hold_s`` after each, and opens
+    the same steps back to the contact position.
+    """
+
+    close_speed_mm_s: float = 10.0               # mm/s, closing speed before contact (gap)
+    clearance_mm: tuple[float, float] = (2.0, 6.0)  # mm, range of the initial gap minus the object width
+    contact_dn: float = 10.0                     # DN, contact detection level above the free reading
+    max_precontact: float = 0.4                  # fraction of the width squeezed before giving up detection
+    step_mm: float = 1.0                         # mm, gap change per squeeze/release step
+    n_steps: int = 5                             # squeeze steps (as many release steps)
+    step_speed_mm_s: float = 10.0                # mm/s, gap speed during a step
+    hold_s: float = 0.4                          # s, hold after each step
+    offset_mm: float = 2.5                       # mm, object centre uniform in ±offset on the patch (x and y)
+
+    def __post_init__(self) -> None:
+        for name in ("close_speed_mm_s", "contact_dn", "step_mm", "step_speed_mm_s"):
+            positive(getattr(self, name), name)
+        for name in ("hold_s", "offset_mm"):
+            positive(getattr(self, name), name, allow_zero=True)
+        integer(self.n_steps, "n_steps", minimum=1)
+        fraction(self.max_precontact, "max_precontact")
+        arr = real_array(self.clearance_mm, "clearance_mm")
+        if arr.shape != (2,) or not np.all(np.isfinite(arr)) or not 0 < arr[0] <= arr[1]:
+            raise InputError(f"clearance_mm must be (low, high) with 0 < low <= high, "
+                             f"got {self.clearance_mm!r}")
+        object.__setattr__(self, "clearance_mm", (float(arr[0]), float(arr[1])))
+
+    def step_profile(self, rate_hz: float) -> np.ndarray:
+        """Gap reduction (mm) after contact for the squeeze and release phases, one value per frame."""
+        n_move = max(1, int(round(self.step_mm / self.step_speed_mm_s * rate_hz)))
+        n_hold = int(round(self.hold_s * rate_hz))
+        step = np.concatenate([np.arange(1, n_move + 1) / n_move, np.ones(n_hold)]) * self.step_mm
+        up = [i * self.step_mm + step for i in range(self.n_steps)]
+        down = [(self.n_steps - i) * self.step_mm - step for i in range(self.n_steps)]
+        return np.concatenate(up + down)
+
+
+@dataclass(frozen=True, eq=False)
+class Grasp:
+    """One simulated grasp: frames of both jaws and the gripper trajectory.
+
+    Attributes
+    ----------
+    left, right : (T, rows, cols) uint8
+        Frames of the left and right jaw, DN.
+    t_s : (T,) float
+        Sample times, s.
+    depth_mm : (T,) float
+        Approach of the object into each jaw since first touch (half the gap reduction), mm.
+    contact_frame : int
+        Frame at which the gripper detected contact and started the squeeze steps.
+    x_mm, y_mm, angle_rad : float
+        The object's pose on the left patch (mirrored in x on the right one).
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    t_s: np.ndarray
+    depth_mm: np.ndarray
+    contact_frame: int
+    x_mm: float
+    y_mm: float
+    angle_rad: float
+
+
+def default_jaws(sensors=None) -> tuple[Thread8, Thread8]:
+    """The (left, right) jaws: ``sensors`` checked, or two arrays with ``unit_seed`` 0 and 1 for None."""
+    if sensors is None:
+        return Thread8(Thread8Config(unit_seed=0)), Thread8(Thread8Config(unit_seed=1))
+    if (not isinstance(sensors, (tuple, list)) or len(sensors) != 2
+            or not all(isinstance(s, Thread8) for s in sensors)):
+        raise TypeError(f"sensors must be a pair (left, right) of Thread8, got {sensors!r}")
+    if sensors[0].layout.rate_hz != sensors[1].layout.rate_hz:
+        raise InputError(f"both jaws must sample at the same rate, got {sensors[0].layout.rate_hz} and "
+                         f"{sensors[1].layout.rate_hz} Hz")
+    return sensors[0], sensors[1]
+
+
+def grasp(obj: PalpationObject, *, seed: int | None = None, protocol: GraspProtocol | None = None,
+          sensors: tuple[Thread8, Thread8] | None = None) -> Grasp:
+    """Simulate one palpation grasp of ``obj`` with a random pose.
+
+    Parameters
+    ----------
+    obj : PalpationObject
+        For example one of :data:`OBJECTS`.
+    seed : int, optional
+        Seeds the pose (offset on the patch, axis angle, initial clearance) and both jaws' noise.
+    protocol : GraspProtocol, optional
+        Gripper motion; ``GraspProtocol()`` by default.
+    sensors : (Thread8, Thread8), optional
+        Left and right jaw; by default two arrays with ``unit_seed`` 0 and 1.
+
+    Returns
+    -------
+    Grasp
+
+    Notes
+    -----
+    The gap closes at constant speed from ``width + clearance``; the depth of
+    the object in each jaw is half the gap reduction beyond the object's
+    width. Contact is detected on the noise-free response of both jaws
+    (loading branch; the level is far below the creep pressure); the
+    squeeze/release steps (:meth:`GraspProtocol.step_profile`) follow from
+    there. All phases are sampled at the sensors' frame rate.
+
+    Examples
+    --------
+    >>> g = grasp(OBJECTS[0], seed=1)
+    >>> g.left.shape[1:], g.left.dtype.name, g.left.shape == g.right.shape
+    ((8, 8), 'uint8', True)
+    """
+    if not isinstance(obj, PalpationObject):
+        raise TypeError(f"obj must be a PalpationObject, got {type(obj).__name__}")
+    protocol = GraspProtocol() if protocol is None else protocol
+    if not isinstance(protocol, GraspProtocol):
+        raise TypeError(f"protocol must be a GraspProtocol, got {type(protocol).__name__}")
+    left, right = default_jaws(sensors)
+    seed = seed_value(seed)
+    ss = np.random.SeedSequence(seed)
+    s_pose, s_left, s_right = ss.spawn(3)
+    rng = np.random.default_rng(s_pose)
+    x, y = rng.uniform(-protocol.offset_mm, protocol.offset_mm, size=2) if protocol.offset_mm else (0.0, 0.0)
+    angle = float(rng.uniform(0.0, math.pi))
+    clearance = float(rng.uniform(*protocol.clearance_mm))
+    rate = left.layout.rate_hz
+    ind = obj.indenter
+    poses = ((left, x, angle), (right, -x, math.pi - angle))
+
+    # closing ramp until contact is detected (or the squeeze limit is reached)
+    per_frame = protocol.close_speed_mm_s / rate
+    n_close = int(math.ceil((clearance + protocol.max_precontact * obj.width_mm) / per_frame)) + 1
+    ramp = np.clip(np.arange(n_close) * per_frame - clearance, 0.0, None) / 2.0
+    k_contact = n_close - 1
+    for start in range(0, n_close, 32):       # in chunks: most objects are detected early in the ramp
+        part = slice(start, min(start + 32, n_close))
+        t_part = np.arange(part.start, part.stop) / rate
+        detected = np.zeros(t_part.size, dtype=bool)
+        for src, px, pa in poses:
+            sc = Scenario(ind, t_part, x_mm=px, y_mm=y, angle_rad=pa, depth_mm=ramp[part])
+            dn = src.counts(src.voltage(src.contact(sc)["taxel_kpa"], t_part))
+            free = src.counts(src.voltage(np.zeros((1, *src.layout.shape))))[0]
+            detected |= (dn - free).reshape(t_part.size, -1).max(axis=1) >= protocol.contact_dn
+        if detected.any():
+            k_contact = start + int(np.argmax(detected))
+            break
+    depth = np.concatenate([ramp[:k_contact + 1], ramp[k_contact] + protocol.step_profile(rate) / 2.0])
+    t = np.arange(depth.size) / rate
+    out = []
+    for (src, px, pa), s_noise in zip(poses, (s_left, s_right), strict=True):
+        sc = Scenario(ind, t, x_mm=px, y_mm=y, angle_rad=pa, depth_mm=depth)
+        out.append(src.frames(sc, seed=int(s_noise.generate_state(1)[0])))
+    return Grasp(out[0], out[1], t, depth, k_contact, float(x), float(y), angle)
+
+
+
+@lru_cache(maxsize=1)
+def _default_layout() -> Layout:
+    return Thread8().layout
+
+
+def mu_sigma(frames) -> np.ndarray:
+    """(T, 2) series of the frame mean μ and standard deviation σ over all cells of (T, ...) ``frames``."""
+    arr = np.asarray(frames)
+    flat = np.asarray(arr, dtype=np.float64).reshape(arr.shape[0], -1)
+    return np.stack([flat.mean(axis=1), flat.std(axis=1)], axis=1)
+
+
+def frame_features(frames, *, layout: Layout | None = None) -> dict[str, np.ndarray]:
+    r"""Per frame the mean μ and standard deviation σ of all taxels.
+
+    Parameters
+    ----------
+    frames : (T, H, W) or (H, W) array
+        Frames on ``layout`` (uint8, uint16, float32 or float64).
+    layout : Layout, optional
+        Default: the ``thread8`` layout (8×8). Only cells in ``layout.mask`` count.
+
+    Returns
+    -------
+    dict
+        Table-shaped, one row per frame: ``frame``, ``mu``, ``sigma`` (float64,
+        the frames' units).
+
+    Raises
+    ------
+    ShapeError
+        When the frames do not have the layout's shape.
+    TypeError, InputError
+        For non-numeric or non-finite values.
+
+    Notes
+    -----
+    :math:`\mu_t = \frac1N\sum_i v_{t,i}`, :math:`\sigma_t = \sqrt{\frac1N\sum_i (v_{t,i} - \mu_t)^2}`
+    (population standard deviation) over the :math:`N` cells.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> f = frame_features(np.arange(64).reshape(1, 8, 8))
+    >>> float(f["mu"][0]), round(float(f["sigma"][0]), 4)
+    (31.5, 18.473)
+    """
+    if layout is None:
+        layout = _default_layout()
+    if not isinstance(layout, Layout):
+        raise TypeError(f"layout must be a Layout, got {type(layout).__name__}")
+    arr = layout.check_frames(frames)
+    cells = arr[:, layout.mask]
+    return {"frame": np.arange(arr.shape[0]), "mu": cells.mean(axis=1), "sigma": cells.std(axis=1)}
+

@@ -1,0 +1,422 @@
+"""8×8 piezoresistive thread-electrode array (source ``"thread8"``): contact, film response, ADC.
+
+Sixty-four taxels at 2.5 mm pitch sit on a 20×20 mm piezoresistive patch
+whose rows and columns are conductive threads; the electronics scan row by
+row and read every crossing through a voltage divider with an 8-bit ADC at
+100 frames/s. Pressing the patch lowers the crossing's resistance from
+megaohms (free) to about 0.5 kΩ, so the divider voltage rises.
+:class:`Thread8` simulates the array (registered as ``"thread8"``); grasps
+with one array on each gripper jaw are in :mod:`optitact.taxels.grasp`, the
+palpation study in ``optitact.studies.palpation``.
+
+Convention: taxel indices are ``(row, col)``, ``(0, 0)`` top-left; the layout
+frame has x along columns and y along rows (mm), origin at the patch centre
+(:mod:`optitact.sources`), seen from the grasped object.
+
+Examples
+--------
+>>> from optitact.sources import make_source
+>>> src = make_source("thread8")
+>>> src.layout.shape, src.layout.units, src.layout.rate_hz
+((8, 8), 'DN', 100.0)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .._validate import finite, integer, positive, real_array
+from ..errors import InputError, ShapeError
+from ..sources import Indenter, Layout, Scenario
+from .base import TaxelSource, fraction, noise_rng, unit_gains
+from .indenter import surface_height
+
+__all__ = ["Thread8Config", "Thread8", "SUPPORTED_SHAPES"]
+
+#: Indenter shapes :class:`Thread8` simulates.
+SUPPORTED_SHAPES = ("sphere", "cylinder", "box", "flat")
+
+@dataclass(frozen=True)
+class Thread8Config:
+    """The 8×8 piezoresistive thread-electrode array on a gripper jaw.
+
+    Every field states its unit. Per-taxel sensitivities are drawn once from
+    ``unit_seed``, so one config describes one physical sensor; noise is drawn
+    from the ``seed`` of each :meth:`Thread8.frames` call. The patch side is
+    ``rows * pitch_mm`` (20 mm by default).
+    """
+
+    rows: int = 8                          # taxels along y
+    cols: int = 8                          # taxels along x
+    pitch_mm: float = 2.5                  # mm, taxel centre spacing (thread spacing)
+    v_plus: float = 5.0                    # V, divider supply and ADC reference (ratiometric)
+    r_divider_ohm: float = 10e3            # Ω, divider resistor R in V = V₊·R/(R_sensor + R)
+    r_free_ohm: float = 1e6                # Ω, crossing resistance without load
+    r_pressed_ohm: float = 500.0           # Ω, crossing resistance at full load (limit)
+    r_coeff_ohm_kpa: float = 4.5e5         # Ω·kPa, R_sensor - r_pressed ≈ r_coeff / (p - threshold)
+    threshold_kpa: float = 30.0            # kPa, pressure below which the film stays open
+    transition_kpa: float = 3.0            # kPa, width of the smooth onset around the threshold
+    creep_kpa: float = 200.0               # kPa, pressure above which the response creeps
+    creep_tau_s: float = 0.5               # s, time constant of creep and its recovery
+    creep_fraction: float = 0.15           # 1, steady-state relative rise of effective pressure (p → ∞)
+    hysteresis: float = 0.08               # fraction of the peak pressure: widest unloading/loading gap
+    sensitivity_spread: float = 0.1        # 1-sigma of ln(sensitivity) across taxels (unit_seed)
+    unit_seed: int = 0                     # seed of this sensor's per-taxel sensitivities
+    adc_bits: int = 8                      # bits of the ADC
+    rate_hz: float = 100.0                 # frames / s
+    noise_v: float = 0.01                  # V, 1-sigma white noise of every sample before the ADC
+    pad_modulus_mpa: float = 0.5           # MPa = N/mm², modulus of the jaw's rubber pad (Winkler layer)
+    pad_thickness_mm: float = 5.0          # mm, thickness of the jaw's rubber pad
+    grid_mm: float = 0.25                  # mm, contact integration grid (pitch_mm / grid_mm an integer)
+
+    def __post_init__(self) -> None:
+        integer(self.rows, "rows", minimum=1)
+        integer(self.cols, "cols", minimum=1)
+        integer(self.adc_bits, "adc_bits", minimum=1)
+        integer(self.unit_seed, "unit_seed", minimum=0)
+        if self.adc_bits > 16:
+            raise InputError(f"adc_bits must be <= 16 (frames are uint8/uint16), got {self.adc_bits}")
+        for name in ("pitch_mm", "v_plus", "r_divider_ohm", "r_free_ohm", "r_pressed_ohm", "r_coeff_ohm_kpa",
+                     "threshold_kpa", "transition_kpa", "creep_kpa", "creep_tau_s", "rate_hz",
+                     "pad_modulus_mpa", "pad_thickness_mm", "grid_mm"):
+            positive(getattr(self, name), name)
+        for name in ("sensitivity_spread", "noise_v"):
+            positive(getattr(self, name), name, allow_zero=True)
+        fraction(self.creep_fraction, "creep_fraction")
+        fraction(self.hysteresis, "hysteresis", upper=0.5)
+        if self.r_pressed_ohm >= self.r_free_ohm:
+            raise InputError(f"r_pressed_ohm must be < r_free_ohm = {self.r_free_ohm:g}, "
+                             f"got {self.r_pressed_ohm!r}")
+        ratio = self.pitch_mm / self.grid_mm
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise InputError(f"pitch_mm / grid_mm must be a positive integer, got {self.pitch_mm!r} / "
+                             f"{self.grid_mm!r} = {ratio:g}")
+
+    @property
+    def pad_kpa_per_mm(self) -> float:
+        """Areal stiffness of the rubber pad, kPa per mm of compression (E / t)."""
+        return 1e3 * self.pad_modulus_mpa / self.pad_thickness_mm
+
+
+class Thread8(TaxelSource):
+    r"""Simulated 8×8 piezoresistive thread-electrode array (source ``"thread8"``).
+
+    Parameters
+    ----------
+    config : Thread8Config, optional
+        The sensor instance; defaults to ``Thread8Config()``.
+
+    Notes
+    -----
+    *Contact.* The patch lies on a rubber pad (Winkler layer, areal stiffness
+    :math:`\kappa_p = E/t`) and the object's surface is a second Winkler
+    layer in series, :math:`\kappa_o = k / A_{pad}`, where :math:`k` is the
+    indenter's ``stiffness_n_per_mm`` measured with a plate the size of the
+    patch (:math:`A_{pad}`; rigid: :math:`\kappa_o = \infty`). With the object's
+    undeformed surface :math:`h(x, y)` above its crest (sphere / cylinder of
+    radius :math:`R`: :math:`h = R - \sqrt{R^2 - r^2}`, :math:`\infty` beyond
+    :math:`R` or beyond the length; box: 0 on its face of :math:`2a \times L`,
+    :math:`\infty` off it; flat: 0) and the depth :math:`d` (``depth_mm``: how far
+    the crest has moved into pad + object since first touch), the overlap
+    is :math:`u = \max(0, d - h)` and, on first loading, the pressure is
+    :math:`p = \kappa u`, :math:`\kappa = (1/\kappa_p + 1/\kappa_o)^{-1}`.
+    Object compliance and size therefore set the contact area and pressure:
+    a soft object needs a large depth for a given pressure and flattens over
+    a wide area; a small rigid one concentrates the load.
+
+    *Plasticity.* A plastic object keeps part of its deformation: at each
+    point the object's set after unloading is :math:`r\,u_{max}`, with
+    :math:`r = \phi\,\kappa/\kappa_o` (plasticity :math:`\phi` times the
+    object's share of the compression) and :math:`u_{max}` the largest overlap
+    so far. Below :math:`u_{max}` the pressure follows the elastic unloading
+    line :math:`p = \kappa u_{max}\,\mathrm{clip}((u - r u_{max}) / ((1 - r) u_{max}), 0, 1)`,
+    so on release it drops faster and reaches 0 before the object is free.
+
+    *Taxels.* Each taxel reads the mean pressure :math:`p_i` over its
+    ``pitch × pitch`` cell. Hysteresis: while unloading from its running peak
+    :math:`P_i` the film behaves as if pressed by
+    :math:`p_i + \eta P_i\,4q(1 - q)`, :math:`q = p_i/P_i` (``hysteresis``
+    :math:`\eta`). Creep: above :math:`p_c` (``creep_kpa``) the effective
+    pressure drifts up as :math:`p(1 + c)` with
+    :math:`\dot c = (c_\infty - c)/\tau`, :math:`c_\infty = f_c \max(0, 1 - p_c/p)`
+    (first order, also recovering with :math:`\tau` when unloaded).
+
+    *Resistance.* With the smooth excess over the threshold
+    :math:`e = w \ln(1 + e^{(p - p_{th})/w})` (``transition_kpa`` :math:`w`):
+
+    .. math:: R_s = R_{pr} + \left(\frac{1}{R_{free} - R_{pr}} + \frac{s_i e}{\rho}\right)^{-1},
+
+    i.e. :math:`R_{free}` (≈ 1 MΩ) below the threshold, a conductance that
+    grows linearly with the excess pressure above it (:math:`\rho` =
+    ``r_coeff_ohm_kpa``, per-taxel sensitivity :math:`s_i` from ``unit_seed``)
+    and the limit :math:`R_{pr}` (≈ 0.5 kΩ). The divider gives
+    :math:`V = V_+ R/(R_s + R)`; white noise is added and the ADC (reference
+    :math:`V_+`) quantises to ``adc_bits``. Frames are uint8 (uint16 above 8
+    bits) DN (``layout.units == "DN"``). The row/column scan is treated as
+    simultaneous within a frame; crosstalk between threads is not modelled.
+    """
+
+    name = "thread8"
+    config_type = Thread8Config
+    shapes = SUPPORTED_SHAPES
+
+    def __init__(self, config: Thread8Config | None = None) -> None:
+        super().__init__(config)
+
+    def _setup(self, c: Thread8Config) -> None:
+        rng = np.random.default_rng(c.unit_seed)
+        self.sensitivity = unit_gains(rng, (c.rows, c.cols), c.sensitivity_spread)
+        self._sub = int(round(c.pitch_mm / c.grid_mm))
+        ny, nx = c.rows * self._sub, c.cols * self._sub
+        gy = (np.arange(ny) - (ny - 1) / 2) * c.grid_mm
+        gx = (np.arange(nx) - (nx - 1) / 2) * c.grid_mm
+        yy, xx = np.meshgrid(gy, gx, indexing="ij")
+        self._gx, self._gy = xx.ravel(), yy.ravel()
+        iy, ix = np.meshgrid(np.arange(ny) // self._sub, np.arange(nx) // self._sub, indexing="ij")
+        self._gy_cell, self._gx_cell = iy.ravel(), ix.ravel()
+        self._cell_area = c.grid_mm ** 2
+
+    @cached_property
+    def layout(self) -> Layout:
+        """8×8 grid, 2.5 mm pitch, values in ADC counts (DN), 100 Hz."""
+        c = self.config
+        return Layout(shape=(c.rows, c.cols), pitch_mm=(c.pitch_mm, c.pitch_mm), units="DN",
+                      rate_hz=c.rate_hz)
+
+    @property
+    def pad_area_mm2(self) -> float:
+        """Area of the patch, mm²."""
+        c = self.config
+        return c.rows * c.cols * c.pitch_mm ** 2
+
+    @property
+    def full_scale(self) -> int:
+        """Largest ADC count."""
+        return 2 ** self.config.adc_bits - 1
+
+    # ---- contact ---------------------------------------------------------------------------------
+    def _heights(self, ind: Indenter, x, y, ang) -> np.ndarray:
+        """Object surface above its crest on the grid, (n, N) mm (inf where it cannot touch)."""
+        return surface_height(ind, self._gx, self._gy, x, y, ang)
+
+    def _stiffness(self, ind: Indenter) -> tuple[float, float]:
+        """Series areal stiffness (kPa/mm) and the plastic set fraction r."""
+        kp = self.config.pad_kpa_per_mm
+        if math.isinf(ind.stiffness_n_per_mm):
+            return kp, 0.0
+        ko = 1e3 * ind.stiffness_n_per_mm / self.pad_area_mm2
+        k = 1.0 / (1.0 / kp + 1.0 / ko)
+        return k, ind.plasticity * k / ko
+
+    @staticmethod
+    def _pressure(u: np.ndarray, umax: np.ndarray, k: float, r: float) -> np.ndarray:
+        """Pressure (kPa) at overlap ``u`` after the largest overlap ``umax`` (>= u)."""
+        if r == 0.0:
+            return k * u
+        safe = np.where(umax > 0, umax, 1.0)
+        return k * umax * np.clip((u - r * umax) / ((1.0 - r) * safe), 0.0, 1.0)
+
+    def _check(self, scenario: Scenario) -> Indenter:
+        return self.check_scenario(scenario)[0]
+
+    def contact(self, scenario: Scenario) -> dict[str, np.ndarray]:
+        """Noise-free contact state per sample.
+
+        Parameters
+        ----------
+        scenario : Scenario
+            Indenter ``sphere``/``cylinder`` (``size_mm`` = radius), ``box``
+            (``size_mm`` = half width of its face, ``length_mm`` its length) or
+            ``flat``, with ``stiffness_n_per_mm`` and ``plasticity``; pose
+            ``x_mm``, ``y_mm``, ``angle_rad`` (axis of a cylinder/box); either
+            ``depth_mm`` (the object's crest approach into pad + object since
+            first touch) or ``force_n`` (total normal force on this patch).
+
+        Returns
+        -------
+        dict
+            Table-shaped, one row per sample: ``frame``, ``depth_mm``,
+            ``force_n`` (total normal force on the patch), ``peak_kpa`` (largest
+            pressure on the patch) and ``taxel_kpa`` ((T, rows, cols) mean
+            pressure over each taxel cell, kPa).
+
+        Raises
+        ------
+        TypeError
+            If ``scenario`` is not a Scenario.
+        InputError
+            For an unsupported indenter, ``extra`` keys, or a force that cannot be reached.
+        """
+        ind = self._check(scenario)
+        k, r = self._stiffness(ind)
+        c = self.config
+        n_t, n_g = scenario.n_frames, self._gx.size
+        taxel = np.zeros((n_t, c.rows, c.cols))
+        force = np.zeros(n_t)
+        peak = np.zeros(n_t)
+        sx, sy, sa = scenario.x_mm, scenario.y_mm, scenario.angle_rad
+        sub = self._sub
+
+        def store(idx, p):
+            grid = p.reshape(idx.size, c.rows, sub, c.cols, sub)
+            taxel[idx] = grid.mean(axis=(2, 4))
+            force[idx] = p.sum(axis=1) * self._cell_area * 1e-3
+            peak[idx] = p.max(axis=1)
+
+        prev = np.zeros(n_g)
+        static = all(np.all(a == a[0]) for a in (sx, sy, sa))
+        if scenario.depth_mm is not None and static:
+            # one pose: u_max = clip(running max depth - h); only points that are ever touched matter
+            depth = np.asarray(scenario.depth_mm, dtype=float)
+            h = self._heights(ind, sx[:1], sy[:1], sa[:1])[0]
+            hit = np.flatnonzero(h < depth.max())
+            if hit.size:
+                u = np.clip(depth[:, None] - h[hit], 0.0, None)
+                umax = np.clip(np.maximum.accumulate(depth)[:, None] - h[hit], 0.0, None)
+                p = self._pressure(u, umax, k, r)
+                cell = self._gy_cell[hit] * c.cols + self._gx_cell[hit]      # hit is sorted, cells are not
+                order = np.argsort(cell, kind="stable")
+                cells, starts = np.unique(cell[order], return_index=True)
+                sums = np.zeros((n_t, c.rows * c.cols))
+                sums[:, cells] = np.add.reduceat(p[:, order], starts, axis=1)
+                taxel[:] = (sums / sub ** 2).reshape(n_t, c.rows, c.cols)
+                force[:] = p.sum(axis=1) * self._cell_area * 1e-3
+                peak[:] = p.max(axis=1)
+        elif scenario.depth_mm is not None:
+            depth = np.asarray(scenario.depth_mm, dtype=float)
+            for start in range(0, n_t, 128):
+                idx = np.arange(start, min(start + 128, n_t))
+                h = self._heights(ind, sx[idx], sy[idx], sa[idx])
+                u = np.clip(depth[idx, None] - h, 0.0, None)
+                umax = np.maximum(prev[None, :], np.maximum.accumulate(u, axis=0))
+                store(idx, self._pressure(u, umax, k, r))
+                prev = umax[-1]
+        else:
+            from scipy.optimize import brentq
+
+            depth = np.zeros(n_t)
+            for i, f in enumerate(scenario.force_n):
+                h = self._heights(ind, sx[i:i + 1], sy[i:i + 1], sa[i:i + 1])[0]
+
+                def excess(d, h=h, f=f, prev=prev):
+                    u = np.clip(d - h, 0.0, None)
+                    return self._pressure(u, np.maximum(prev, u), k, r).sum() * self._cell_area * 1e-3 - f
+
+                if f > 0:
+                    hi = 0.1
+                    while excess(hi) < 0:
+                        hi *= 2.0
+                        if hi > 1e4:
+                            raise InputError(f"force_n[{i}] = {f} N cannot be reached by this indenter "
+                                             "on the patch")
+                    depth[i] = brentq(excess, 0.0, hi, xtol=1e-10, rtol=1e-12)
+                u = np.clip(depth[i] - h, 0.0, None)
+                umax = np.maximum(prev, u)
+                store(np.array([i]), self._pressure(u, umax, k, r)[None, :])
+                prev = umax
+        return {"frame": np.arange(n_t), "depth_mm": depth, "force_n": force, "peak_kpa": peak,
+                "taxel_kpa": taxel}
+
+    # ---- response --------------------------------------------------------------------------------
+    def resistance_ohm(self, pressure_kpa, *, sensitivity=1.0) -> np.ndarray:
+        """Static crossing resistance (Ω) at effective pressure ``pressure_kpa`` (no hysteresis or creep).
+
+        Parameters
+        ----------
+        pressure_kpa : float or array
+            Effective pressure, kPa (>= 0).
+        sensitivity : float or array
+            Per-taxel sensitivity factor :math:`s_i` (1 = nominal); broadcast with ``pressure_kpa``.
+
+        Examples
+        --------
+        >>> src = Thread8()
+        >>> float(src.resistance_ohm(0.0)) > 0.99e6, round(float(src.resistance_ohm(1e6)))
+        (True, 500)
+        """
+        p = finite(real_array(pressure_kpa, "pressure_kpa"), "pressure_kpa")
+        if p.size and p.min() < 0:
+            raise InputError(f"pressure_kpa must be >= 0, got minimum {p.min()}")
+        c = self.config
+        w = c.transition_kpa
+        excess = w * np.logaddexp(0.0, (p - c.threshold_kpa) / w)
+        g = 1.0 / (c.r_free_ohm - c.r_pressed_ohm) + np.asarray(sensitivity) * excess / c.r_coeff_ohm_kpa
+        return c.r_pressed_ohm + 1.0 / g
+
+    def effective_kpa(self, taxel_kpa, t_s=None) -> np.ndarray:
+        """Pressure the film responds to (T, rows, cols), kPa: taxel pressure with hysteresis and creep.
+
+        Parameters
+        ----------
+        taxel_kpa : (T, rows, cols) array
+            Mean pressure per taxel, kPa, in time order.
+        t_s : (T,) array, optional
+            Sample times, s; by default ``arange(T) / rate_hz``.
+        """
+        p = self.layout.check_frames(taxel_kpa, "taxel_kpa")
+        if np.any(p < 0):
+            raise InputError(f"taxel_kpa must be >= 0, got minimum {p.min()}")
+        c = self.config
+        n = p.shape[0]
+        if t_s is None:
+            t_s = np.arange(n) / c.rate_hz
+        t = finite(real_array(t_s, "t_s"), "t_s")
+        if t.shape != (n,):
+            raise ShapeError(f"t_s must have shape ({n},) like taxel_kpa, got {t.shape}")
+        peak = np.maximum.accumulate(p, axis=0)
+        q = np.divide(p, peak, out=np.ones_like(p), where=peak > 0)
+        ph = p + c.hysteresis * peak * 4.0 * q * (1.0 - q)
+        ratio = np.divide(c.creep_kpa, ph, out=np.full_like(ph, np.inf), where=ph > 0)
+        c_inf = c.creep_fraction * np.clip(1.0 - ratio, 0.0, None)
+        dt = np.diff(t, prepend=t[0] - 1.0 / c.rate_hz)
+        alpha = -np.expm1(-dt / c.creep_tau_s)
+        creep = np.zeros_like(ph)
+        state = np.zeros(ph.shape[1:])
+        for i in range(n):
+            state = state + alpha[i] * (c_inf[i] - state)
+            creep[i] = state
+        return ph * (1.0 + creep)
+
+    def voltage(self, taxel_kpa, t_s=None) -> np.ndarray:
+        """Noise-free divider voltage (T, rows, cols), V, for taxel pressures in time order.
+
+        See :meth:`effective_kpa` for the parameters and the class Notes for the model.
+        """
+        r_s = self.resistance_ohm(self.effective_kpa(taxel_kpa, t_s), sensitivity=self.sensitivity)
+        c = self.config
+        return c.v_plus * c.r_divider_ohm / (r_s + c.r_divider_ohm)
+
+    def counts(self, v) -> np.ndarray:
+        """Noise-free ADC reading (float DN, not rounded) of voltages ``v``."""
+        return np.asarray(v, dtype=float) / self.config.v_plus * self.full_scale
+
+    def frames(self, scenario: Scenario, *, seed: int | None = None) -> np.ndarray:
+        """ADC counts (T, rows, cols), uint8 DN (uint16 for ``adc_bits`` > 8), for ``scenario``.
+
+        Parameters
+        ----------
+        scenario : Scenario
+            See :meth:`contact`.
+        seed : int, optional
+            Seed of the noise; the same seed gives the same frames.
+
+        Raises
+        ------
+        TypeError
+            If ``scenario`` is not a Scenario.
+        InputError
+            For an unsupported indenter, ``extra`` keys or an unreachable force.
+        """
+        rng = noise_rng(seed)
+        state = self.contact(scenario)
+        v = self.voltage(state["taxel_kpa"], scenario.t_s)
+        v = v + self.config.noise_v * rng.standard_normal(v.shape)
+        dtype = np.uint8 if self.config.adc_bits <= 8 else np.uint16
+        return np.clip(np.rint(self.counts(v)), 0, self.full_scale).astype(dtype)
+
+
+Thread8.register()
