@@ -17,9 +17,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from IPython.display import Image, display
 
-from optitact.sources import Indenter, Scenario, make_source, moments
 from optitact import studies
-from optitact.taxels import fingertip, optopad
+from optitact.sources import Indenter, Scenario, make_source, moments
 
 work = Path(tempfile.mkdtemp())
 
@@ -82,10 +81,10 @@ display(Image(filename=str(work / "palpation.png")))
 # and its diameter by lookup table, SVM and MLP.
 
 # %%
-res = optopad.experiment(seed=0, full=False, progress=False)
+res = studies.run("wire", seed=0, size="quick")
 for name in ("lookup_table", "svm", "mlp"):
     print(f"{name:12s} accuracy {res['classification'][name]['accuracy']:.1%}")
-optopad.plot_experiment(res, work / "wire.png")
+studies.save_plot("wire", res, work / "wire.png")
 display(Image(filename=str(work / "wire.png")))
 
 # %% [markdown]
@@ -93,10 +92,10 @@ display(Image(filename=str(work / "wire.png")))
 # back from the units' readings by the published plane formula and by a calibrated matrix.
 
 # %%
-res = fingertip.experiment(seed=0, full=False, progress=False)
+res = studies.run("fingertip", seed=0, size="quick")
 dec = res["decoupling"]
 for name in ("published", "calibrated"):
     print(f"{name:10s} decoupling: RMS error x/y/z", np.round(dec[name]["rms_n"], 3), "N")
 print(f"object recognition: {res['recognition']['accuracy']:.1%} (chance {res['recognition']['chance']:.1%})")
-fingertip.plot_experiment(res, work / "fingertip.png")
+studies.save_plot("fingertip", res, work / "fingertip.png")
 display(Image(filename=str(work / "fingertip.png")))

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import importlib
 
-_MODULES = ("piezo16", "thread8", "optopad", "fingertip")
+_MODULES = ("piezo16", "thread8", "opto5", "fingertip25")
 
 for _name in _MODULES:
     try:
