@@ -14,9 +14,10 @@ Importing this package registers every taxel sensor type with
   active tracing with it in :mod:`optitact.taxels.combined`;
 - ``"thread8"``: 8x8 piezoresistive thread-electrode array (:mod:`optitact.taxels.thread8`); grasps with
   one on each gripper jaw in :mod:`optitact.taxels.grasp`, DTW and k-NN in :mod:`optitact.taxels.dtw`;
-- ``"opto5"``: 5x5 optoelectronic taxel pad, wire shape and diameter (:mod:`optitact.taxels.optopad`);
-- ``"fingertip25"``: non-coplanar 25-unit piezoresistive fingertip, 3-D force
-  (:mod:`optitact.taxels.fingertip`).
+- ``"opto5"``: 5x5 optoelectronic taxel pad (:mod:`optitact.taxels.opto5`); offset removal, normalisation,
+  wire shape and diameter in :mod:`optitact.taxels.wire`;
+- ``"fingertip25"``: non-coplanar 25-unit piezoresistive fingertip (:mod:`optitact.taxels.fingertip25`);
+  3-D force by plane decoupling in :mod:`optitact.taxels.decoupling`.
 """
 
 from __future__ import annotations
@@ -26,8 +27,4 @@ import importlib
 _MODULES = ("piezo16", "thread8", "opto5", "fingertip25")
 
 for _name in _MODULES:
-    try:
-        importlib.import_module(f"{__name__}.{_name}")
-    except ModuleNotFoundError as _exc:  # pragma: no cover - while a module is being written
-        if _exc.name != f"{__name__}.{_name}":
-            raise
+    importlib.import_module(f"{__name__}.{_name}")
