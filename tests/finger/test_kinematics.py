@@ -145,3 +145,13 @@ def test_follow_holds_the_lean_and_checks_targets():
         f.follow(targets[:, :2], fg.POSE_SCAN)
     with pytest.raises(InputError, match="z0"):
         f.follow(targets, fg.POSE_SCAN, z0=float("inf"))
+
+
+def test_the_finger_package_imports_no_studies_and_no_matplotlib():
+    import subprocess
+    import sys
+
+    code = ("import sys, optitact.finger; "
+            "bad = [m for m in sys.modules if m.startswith(('optitact.studies', 'matplotlib'))]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
