@@ -24,13 +24,12 @@ is reduced to its magnitude ``|F_t|``; a scalar series is used as is
 from __future__ import annotations
 
 import math
-import numbers
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from optitact._validate import finite, integer, positive, real_array
+from optitact._validate import finite, integer, positive, real_array, real_number
 from optitact.errors import InputError, ShapeError
 
 __all__ = ["SLIP_THRESHOLD", "TABLE_THRESHOLD", "CONTOUR_THRESHOLD", "FrictionEstimate",
@@ -483,11 +482,7 @@ class SlipDetector:
             Non-numeric or non-finite values, or ``t`` not after the previous
             sample.
         """
-        if isinstance(t, bool) or not isinstance(t, numbers.Real):
-            raise TypeError(f"t must be a real number (s), got {type(t).__name__}")
-        t = float(t)
-        if not math.isfinite(t):
-            raise InputError(f"t must be finite, got {t!r}")
+        t = real_number(t, "t")
         if self._t_last is not None and not t > self._t_last:
             raise InputError(f"t must increase from sample to sample, got {t!r} after {self._t_last!r}")
         f = finite(real_array(shear, "shear"), "shear")

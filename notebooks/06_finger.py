@@ -4,15 +4,19 @@
 # The dome sensor on a three-joint finger on a z-stage, as its inventors used it. Every
 # force below is *estimated* from rendered camera frames through the whole chain
 # (contact model → Mitsuba render of the loaded elements' pixels → CCD → pipeline →
-# shipped calibration), never read from the simulation. Small runs here (about a
-# minute on 2 CPU cores); `optitact experiment finger --full --plot finger.png` runs the
-# published sizes.
+# shipped calibration), never read from the simulation. The library part is
+# `optitact.finger` (kinematics, scene, chain); the experiments are the `finger` study,
+# run here at its quick size (about a minute on 2 CPU cores, reused from the cache when the
+# tests made it): `optitact.studies.run("finger", seed=0, size="full")` runs the published
+# sizes.
 
 # %%
 import numpy as np
 import matplotlib.pyplot as plt
 
 import optitact.finger as fg
+from optitact import studies
+from optitact.studies import finger_contour, finger_scanning, finger_slip
 
 finger = fg.Finger()
 print(finger)
@@ -57,14 +61,20 @@ plt.show()
 # and 0.53 and slides; μ = |F_t| / F_n over the automatically found steady part. The
 # element's feeler tips over near |F_t|/F_z ≈ 0.37, so the sensor leans 9° into the
 # friction cone: the element sees tan(atan μ − 9°) and the world μ comes back by rotating
-# the estimated forces with the finger's kinematics.
+# the estimated forces with the finger's kinematics. The quick study runs all three
+# experiments at once (each is also a function of its own, e.g.
+# `finger_scanning.surface_scanning(chain=..., speeds=(6.2,))`).
 
 # %%
-scan = fg.surface_scanning(speeds=(6.2,), slide_time=1.2, frame_rate=10.0, progress=False)
+result = studies.run("finger", seed=0, size="quick")
+print({k: result["published"][k] for k in ("surface_scanning", "slip")})
+scan = result["surface_scanning"]
 for run in scan["runs"]:
     print(f"μ simulated {run['mu_simulated']:.3f}  estimated {run['mu_estimated']:.3f} ± {run['mu_std']:.3f}"
           f"  error {run['error']:+.3f}  (element-local ratio {run['local_ratio_steady']:.2f})")
-fg.plot_surface_scanning(scan)
+fig = plt.figure(figsize=(13, 10.4), layout="constrained")
+finger_scanning.draw(fig, scan)
+plt.show()
 
 # %% [markdown]
 # **Slip.** The finger drags a block around a rectangle; slip episodes are injected at
@@ -72,9 +82,11 @@ fg.plot_surface_scanning(scan)
 # with the published ±0.06 N/s band, only while the finger cruises.
 
 # %%
-slip = fg.slip_experiment(rectangle=(24.0, 16.0), n_slips=4, progress=False)
+slip = result["slip"]
 print({k: slip["scores"][k] for k in ("precision", "recall", "mean_delay_s", "false_alarms")})
-fg.plot_slip(slip)
+fig = plt.figure(figsize=(15, 3.6), layout="constrained")
+finger_slip.draw(fig, slip)
+plt.show()
 
 # %% [markdown]
 # **Contour tracing.** Seek the table (0.2 N), lift 5 mm, then trace a cylinder with the
@@ -82,15 +94,18 @@ fg.plot_slip(slip)
 # normal, advance 5 mm along the tangent, square search when lost.
 
 # %%
-trace = fg.contour_tracing(objects=("cylinder",), span=8.0, max_frames=60, progress=False)
+trace = result["contour_tracing"]
 cyl = trace["objects"]["cylinder"]
 print(f"table found at {cyl['table']['estimated_z']:+.2f} mm (true 0); {cyl['n_contacts']} contacts, "
       f"max deviation from the true contour {cyl['max_deviation_mm']:.3f} mm")
-fg.plot_contour(trace)
+fig = plt.figure(figsize=(6, 5), layout="constrained")
+finger_contour.draw(fig, trace)
+plt.show()
 
 # %% [markdown]
 # The contact points of an ideal finger are off only by the sensing error (hundredths of a
 # millimetre). The published deviations (about 3.6 mm on a cylinder, 2.7 mm on a box away
-# from its corners) are the real finger's positioning: `fg.joint_error_study` (part of
-# `optitact experiment finger --full`) traces with unmeasured joint-angle errors and
-# reaches them at about 1° (sd).
+# from its corners) are the real finger's positioning: `finger_contour.joint_error_study`
+# (part of the full study) traces with unmeasured joint-angle errors and reaches them at
+# about 1° (sd). `studies.save_plot("finger", result, "finger.png")` draws all three in
+# one figure.

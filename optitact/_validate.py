@@ -69,6 +69,16 @@ def integer(value, name: str, *, minimum: int | None = None) -> int:
     return v
 
 
+def real_number(value, name: str) -> float:
+    """Return ``value`` as a float after checking it is a finite real number (any sign)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise InputError(f"{name} must be finite, got {value!r}")
+    return v
+
+
 def seed_value(seed, name: str = "seed") -> int | None:
     """Check a seed: None or a non-negative integer."""
     if seed is None:
