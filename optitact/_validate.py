@@ -104,3 +104,8 @@ def check_keys(d, allowed, what: str, *, required=()) -> dict:
     if missing:
         raise InputError(f"{what}: missing key(s) {missing}")
     return dict(d)
+
+
+def float_like(arr: np.ndarray, like) -> np.ndarray:
+    """``arr`` as float32 if ``like`` is float32 (float32 in, float32 out), else unchanged."""
+    return arr.astype(np.float32) if np.asarray(like).dtype == np.float32 else arr

@@ -24,18 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import finite, positive, real_array
+from .._validate import finite, float_like, positive, real_array
 from ..errors import InputError, ShapeError
-from .base import check_config
+from .base import check_config, freeze_fields
 from .fingertip25 import (PLANE_AXIS, UNIT_PLANE, UNIT_SIDE, Fingertip25Config, check_unit_grid,
                           force_from_resistance)
 
 __all__ = ["plane_resultants", "decouple", "detection_ranges", "axis_ranges", "DecouplingMatrix",
            "repeatability_error"]
-
-
-def _float_out(arr: np.ndarray, like) -> np.ndarray:
-    return arr.astype(np.float32) if np.asarray(like).dtype == np.float32 else arr
 
 
 _UNITS = ("N", "kOhm")
@@ -90,7 +86,7 @@ def plane_resultants(values, *, units: str = "N",
     c = check_config(config, Fingertip25Config)
     f = _unit_values(values, units, c)
     cos_plane = np.cos(np.deg2rad(c.plane_angles_deg))
-    return {f"F{k}": _float_out(cos_plane[k - 1] * np.sum(np.where(UNIT_PLANE == k, UNIT_SIDE * f, 0.0),
+    return {f"F{k}": float_like(cos_plane[k - 1] * np.sum(np.where(UNIT_PLANE == k, UNIT_SIDE * f, 0.0),
                                                            axis=(-2, -1)), values)
             for k in range(1, 6)}
 
@@ -190,10 +186,7 @@ class DecouplingMatrix:
         b = finite(real_array(self.offset, "offset"), "offset")
         if m.shape != (3, 25) or b.shape != (3,):
             raise ShapeError(f"matrix must have shape (3, 25) and offset (3,), got {m.shape} and {b.shape}")
-        for name, arr in (("matrix", m), ("offset", b)):
-            arr = arr.copy()
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+        freeze_fields(self, matrix=m, offset=b)
 
     @classmethod
     def fit(cls, unit_force_n, force_xyz) -> DecouplingMatrix:

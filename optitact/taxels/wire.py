@@ -33,19 +33,16 @@ from typing import NamedTuple
 import numpy as np
 
 from .._optional import require
-from .._validate import finite, integer, positive, real_array
+from .._validate import finite, float_like, integer, positive, real_array
 from ..errors import InputError, ShapeError
 from ..sources import Indenter, Layout, Scenario, moments
+from .base import freeze_fields
 from .opto5 import FINGER_DISTANCE_MAX, Opto5, check_finger_distance
 
 __all__ = [
     "remove_offset", "NormalisationLUT", "calibration_closure", "hold_response", "WireShape", "main_direction",
     "wire_centroids", "wire_shape", "LookupTableClassifier",
 ]
-
-
-def _float_out(arr: np.ndarray, like) -> np.ndarray:
-    return arr.astype(np.float32) if np.asarray(like).dtype == np.float32 else arr
 
 
 # ---- offset and normalisation ----------------------------------------------------------------------
@@ -79,7 +76,7 @@ def remove_offset(v, *, n: int = 50) -> np.ndarray:
     arr = finite(real_array(v, "v"), "v")
     if arr.ndim < 1 or arr.shape[0] < n:
         raise ShapeError(f"v must have at least n={n} samples along axis 0, got shape {arr.shape}")
-    return _float_out(arr - arr[:n].mean(axis=0), v)
+    return float_like(arr - arr[:n].mean(axis=0), v)
 
 
 @dataclass(frozen=True, eq=False)
@@ -183,7 +180,7 @@ class NormalisationLUT:
         out = np.empty(arr.shape)
         for i, (r, c) in enumerate(np.ndindex(*self.shape)):
             out[..., r, c] = np.interp(arr[..., r, c], self.dv_knots[i], self.value_knots[i])
-        return _float_out(out, dv)
+        return float_like(out, dv)
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """Per-taxel summary, one row per taxel.
@@ -415,10 +412,7 @@ class LookupTableClassifier:
         if t.shape != (p.size, k.size):
             raise ShapeError(f"table must have shape (len(finger_distance), len(classes)) = "
                              f"{(p.size, k.size)}, got {t.shape}")
-        for name, arr in (("finger_distance", p), ("classes", k), ("table", t)):
-            arr = arr.copy()
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+        freeze_fields(self, finger_distance=p, classes=k, table=t)
 
     @classmethod
     def from_table(cls, finger_distance, classes, table) -> LookupTableClassifier:
