@@ -154,7 +154,8 @@ def clamp_cal():
     return fit(*reversed(coupled_set(np.random.default_rng(0), 30)))
 
 
-@stress("calibration_fit", SHARE["clamp"], k_g=st.floats(0.0, 1e6), k_u=st.floats(0.0, 1e6),
+@stress("calibration_fit", SHARE["clamp"], k_g=st.floats(0.0, 1e6),
+        k_u=st.floats(0.0, 1e6, allow_subnormal=False),  # subnormal u: see the xfail below
         ang=st.floats(0, 2 * np.pi))
 def test_forces_beyond_the_fitted_range_are_clamped_and_flagged(clamp_cal, k_g, k_u, ang):
     cal = clamp_cal
@@ -163,6 +164,15 @@ def test_forces_beyond_the_fitted_range_are_clamped_and_flagged(clamp_cal, k_g, 
     est, clamped = cal.forces(Readings(G, u, G > 0, np.zeros_like(G, bool)))
     assert np.isfinite(est).all() and np.all(est[..., 2] >= 0)
     assert clamped[0, 0] == (G[0, 0] > 0 and (k_g > 1 or k_u > 1))
-    edge = Readings(np.minimum(G, cal.g_max), u * min(1.0, 1.0 / k_u if k_u else 1.0), G > 0,
+    edge = Readings(np.minimum(G, cal.g_max), u * (1.0 if k_u <= 1 else 1.0 / k_u), G > 0,
                     np.zeros_like(G, bool))
     np.testing.assert_allclose(est, cal.forces(edge)[0], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.xfail(strict=True, raises=RuntimeWarning,
+                   reason="calib/fit.py Calibration.forces divides u_max by every radius, also where it is "
+                          "not clamped: a subnormal u overflows (found by the stress cases at 10,000)")
+def test_forces_of_a_subnormal_centroid(clamp_cal):
+    u = np.array([[[5e-324 * float(clamp_cal.u_max[0]), 0.0]]])
+    G = np.zeros((1, 1))
+    clamp_cal.forces(Readings(G, u, G > 0, np.zeros_like(G, bool)))
