@@ -1,0 +1,1 @@
+"""Generated stress cases of every stage (issue 6): right answers or documented errors."""
