@@ -14,7 +14,6 @@ identical to an uninterrupted run.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import sys
@@ -27,6 +26,7 @@ from optitact._validate import integer, positive, seed_value
 from optitact.camera import FisheyeCamera
 from optitact.ccd import CCD
 from optitact.errors import InputError
+from optitact.io import json_fingerprint
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
@@ -411,8 +411,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
 
         table = table if table is not None else emission_table(sensor, camera, variant=variant,
                                                                progress=progress)
-        attrs["two_stage_table"] = hashlib.sha256(
-            json.dumps(table.to_dict()["radiance"]).encode()).hexdigest()[:16]
+        attrs["two_stage_table"] = json_fingerprint(table.to_dict()["radiance"], 16)
     path = Path(path)
     n_el, (h, w) = sensor.n_elements, camera.shape
     if path.exists() and (path / "zarr.json").is_file():

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import finite, positive, real_array
-from optitact.camera import FisheyeCamera, _radial_map
+from optitact.camera import FisheyeCamera
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
 from optitact.io import csv_numbers, csv_rows
@@ -460,7 +460,7 @@ class ForceField:
     def _visible_tips(self, camera: FisheyeCamera, idx: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Pixels of the arrow tips ``dome_point(idx, offset)``, cut where they leave the camera's view."""
         s = self.sensor
-        theta_max = _radial_map(s, camera.z).theta_max - 1e-9
+        theta_max = camera.max_polar_angle(s) - 1e-9
 
         def theta(frac):
             p = s.dome_point(idx, offset * frac[:, None])

@@ -223,9 +223,9 @@ def test_spot_pixels_are_the_loaded_regions():
     from optitact.render import spot_pixels
 
     mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
-    fold = Pipeline(SENSOR, PIX_CAM)._fold
+    weights = Pipeline(SENSOR, PIX_CAM).region_weights
     want = np.zeros(PIX_CAM.shape, bool).reshape(-1)
-    want[fold.pixel[np.isin(fold.label, [0, 5, 20])]] = True
+    want[weights.pixel[np.isin(weights.label, [0, 5, 20])]] = True
     np.testing.assert_array_equal(mask.reshape(-1), want)
     assert mask.sum() < 0.1 * mask.size
     assert spot_pixels(SENSOR, PIX_CAM, PIX_LOAD, margin=2).sum() > mask.sum()
