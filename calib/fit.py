@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from optitact.camera import FisheyeCamera
-from optitact._validate import check_keys
+from optitact._validate import check_keys, check_type
 from optitact.errors import InputError, ShapeError
 from optitact.io import atomic_write_text, json_fingerprint
 from optitact.readings import Readings
@@ -76,6 +76,8 @@ class CalibrationMismatchError(InputError):
 
 def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict) -> str:
     """Short hash of the sensor, camera and pipeline options a calibration belongs to."""
+    check_type(sensor, DomeSensor, "sensor")
+    check_type(camera, FisheyeCamera, "camera")
     return json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
                              "pipeline": _plain(pipeline_options)}, 16)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_write, json_fingerprint
+from .io import json_fingerprint, write_npy
 
 __all__ = ["cache_dir", "cached_render"]
 
@@ -59,5 +59,5 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
                      pixels=spot_pixels(sensor, camera, f))
     else:
         img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings)
-    atomic_write(path, lambda tmp: np.save(tmp, img))
+    write_npy(path, img)
     return img

@@ -76,6 +76,13 @@ def seed_value(seed, name: str = "seed") -> int | None:
     return integer(seed, name, minimum=0)
 
 
+def check_type(value, cls: type, name: str):
+    """Return ``value`` if it is a ``cls``; a TypeError naming ``name`` otherwise."""
+    if not isinstance(value, cls):
+        raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+    return value
+
+
 def check_keys(d, allowed, what: str, *, required=(), noun: str = "key") -> dict:
     """Check a dict read from a file: a mapping whose keys are among ``allowed``.
 

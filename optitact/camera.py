@@ -19,7 +19,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._validate import check_keys, finite, integer, positive, real_array, shape_tail
+from ._validate import check_keys, check_type, finite, integer, positive, real_array, shape_tail
 from .errors import InputError
 from .sensor import DomeSensor
 
@@ -227,8 +227,14 @@ def radial_map(sensor: DomeSensor, zc: float) -> RadialMap:
     ``theta_max`` and ``alpha_max`` bound what the camera sees (see
     :meth:`FisheyeCamera.max_polar_angle`).
     """
+    check_type(sensor, DomeSensor, "sensor")
     return _radial_map_cached(sensor.inner_radius, sensor.outer_radius,
                               sensor.refractive_index, float(zc))
+
+
+def _check_optics(sensor, camera) -> None:
+    check_type(sensor, DomeSensor, "sensor")
+    check_type(camera, FisheyeCamera, "camera")
 
 
 def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.ndarray:
@@ -261,6 +267,7 @@ def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.
     inverted by Newton's method from a tabulated start; the round trip with
     :func:`dome_from_pixel` is exact to ~1e-12 mm.
     """
+    _check_optics(sensor, camera)
     p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
     radius = np.linalg.norm(p, axis=-1)
     off = np.abs(radius - sensor.outer_radius)
@@ -308,6 +315,7 @@ def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: FisheyeCamera,
     -----
     See :func:`pixel_from_dome` for the optics.
     """
+    _check_optics(sensor, camera)
     if outside not in ("raise", "nan"):
         raise InputError(f"outside must be 'raise' or 'nan', got {outside!r}")
     alpha, phi = camera._polar_from_pixel(pixels)

@@ -21,7 +21,7 @@ import numpy as np
 from .errors import InputError, ShapeError
 
 __all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
-           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint"]
+           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -55,6 +55,16 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
 def atomic_write_png_figure(fig, path: str | os.PathLike, *, dpi: int = 110) -> Path:
     """Save a matplotlib figure as PNG at ``path`` atomically (:func:`atomic_write`)."""
     return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
+
+
+def write_npy(path: str | os.PathLike, array) -> Path:
+    """Save an array as ``.npy`` at exactly ``path``, atomically (:func:`atomic_write`)."""
+
+    def write(tmp: Path) -> None:
+        with tmp.open("wb") as fh:
+            np.save(fh, np.asarray(array))
+
+    return atomic_write(path, write)
 
 
 def json_fingerprint(obj, n: int = 16) -> str:

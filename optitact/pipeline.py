@@ -33,7 +33,9 @@ the dome point of grid coordinate ``(x, y)``).
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -95,11 +97,51 @@ __all__ = [
     "region_weights",
     "split_regions",
     "subtract_baseline",
+    "take_baseline",
 ]
 
 METHODS = ("fast", "reference")
 #: Frames processed together by the fast method (bounds its temporary memory).
 CHUNK_FRAMES = 64
+
+
+def take_baseline(items, n: int, *, frame=None) -> tuple[np.ndarray | None, list, Iterator]:
+    """Split the first ``n`` items of a stream off as its no-load baseline.
+
+    Parameters
+    ----------
+    items : iterable
+        Frames, or items holding one (see ``frame``).
+    n : int
+        Frames the baseline averages (>= 0; 0 takes none).
+    frame : callable, optional
+        The frame of an item (default: the item itself), e.g.
+        ``lambda item: item[1]`` for ``(source, frame)`` pairs.
+
+    Returns
+    -------
+    baseline : (n, H, W) ndarray or None
+        The first ``n`` frames stacked (for :meth:`Pipeline.with_baseline`);
+        None when ``n == 0`` or the stream is empty.
+    head : list
+        The first ``n`` items (to process with the new baseline).
+    rest : iterator
+        The items after them.
+
+    Raises
+    ------
+    InputError
+        When the stream ends after 1 to ``n - 1`` items.
+    """
+    n = integer(n, "baseline_frames", minimum=0)
+    rest = iter(items)
+    head = list(itertools.islice(rest, n))
+    if not head:
+        return None, head, rest
+    if len(head) < n:
+        raise InputError(f"the stream ended after {len(head)} frames, before the {n} baseline frames")
+    get = (lambda item: item) if frame is None else frame
+    return np.stack([np.asarray(get(item)) for item in head]), head, rest
 
 
 # ---------------------------------------------------------------------------- the pipeline
@@ -351,19 +393,13 @@ class Pipeline:
             the no-load baseline; readings are yielded for every frame,
             those first ones included.
         """
-        baseline_frames = integer(baseline_frames, "baseline_frames", minimum=0)
-        pipe, held = self, []
-        for frame in frames:
-            if len(held) < baseline_frames:
-                held.append(np.array(frame))
-                if len(held) == baseline_frames:
-                    pipe = self.with_baseline(np.stack(held))
-                    yield from pipe.process(np.stack(held))
-                continue
+        baseline, head, rest = take_baseline(frames, baseline_frames)
+        pipe = self
+        if baseline is not None:
+            pipe = self.with_baseline(baseline)
+            yield from pipe.process(baseline)
+        for frame in rest:
             yield pipe.process(frame)
-        if 0 < len(held) < baseline_frames:
-            raise InputError(f"the stream ended after {len(held)} frames, before the "
-                             f"{baseline_frames} baseline frames")
 
     # ------------------------------------------------------------------ the two methods
     def _reference(self, frame: np.ndarray) -> Readings:

@@ -26,7 +26,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._validate import positive
+from ._validate import check_type, positive
 from .camera import FisheyeCamera
 from .errors import InputError
 from .sensor import DomeSensor
@@ -151,6 +151,8 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     ``grid_mm^2 sin(rho/R) / (rho/R)`` with ``rho`` its geodesic distance from
     the centre (the area element of geodesic normal coordinates).
     """
+    check_type(sensor, DomeSensor, "sensor")
+    check_type(camera, FisheyeCamera, "camera")
     radius = default_region_radius(sensor) if radius is None else positive(radius, "radius")
     if radius > math.pi * sensor.outer_radius:
         raise InputError(f"radius must be at most half a great circle of the dome, "

@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from ._validate import check_type
 from .camera import FisheyeCamera
 from .errors import InputError, ShapeError
 from .readings import Readings
@@ -60,6 +61,7 @@ def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[n
         For an empty stack, a NaN or infinite pixel, a float pixel beyond
         ``MAX_GREY`` in magnitude, or a negative value in an integer frame.
     """
+    check_type(camera, FisheyeCamera, "camera")
     try:
         arr = np.asarray(frames)
     except (ValueError, TypeError) as exc:  # ragged nested sequences
