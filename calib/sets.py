@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from optitact._optional import require
 from optitact._validate import integer, positive, seed_value
 from optitact.camera import FisheyeCamera
 from optitact.ccd import CCD
@@ -161,7 +162,7 @@ class CalibrationSet:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
-        import zarr
+        zarr = require("zarr", purpose="calibration sets")
 
         self.path = Path(path)
         if not self.path.exists():
@@ -288,10 +289,8 @@ def _make_frame(maker: FrameMaker, forces, seed: int) -> dict:
 
 def _distributed(scheduler, maker: FrameMaker, todo, forces, seeds, token: str):
     """Run frames on a Dask cluster; yield ``(index, readings)`` as they finish."""
-    try:
-        from distributed import Client, as_completed
-    except ImportError as exc:  # pragma: no cover - a dependency
-        raise InputError("scheduler= needs dask.distributed (pip install 'dask[distributed]')") from exc
+    distributed = require("distributed", purpose="calibration sets on a cluster")
+    Client, as_completed = distributed.Client, distributed.as_completed
     own = not isinstance(scheduler, Client)
     if own and not isinstance(scheduler, str):
         raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
@@ -374,8 +373,9 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     InputError
         If ``path`` holds a set made with other parameters.
     """
-    import zarr
     from tqdm import tqdm
+
+    zarr = require("zarr", purpose="calibration sets")
 
     from optitact.pipeline import Pipeline
     from optitact.render import RenderSettings, render

@@ -501,3 +501,9 @@ def test_keyword_only_arguments(sensor):
         pixel_from_dome([0.0, 0.0, 20.0], sensor, cam)  # type: ignore[misc]
     with pytest.raises(TypeError):
         dome_from_pixel(cam.center, sensor, cam)  # type: ignore[misc]
+
+
+def test_max_polar_angle_is_the_radial_maps_bound(sensor):
+    cam = FisheyeCamera()
+    assert cam.max_polar_angle(sensor) == radial_map(sensor, cam.z).theta_max
+    assert cam.max_polar_angle(sensor) <= math.pi / 2

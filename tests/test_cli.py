@@ -271,3 +271,28 @@ def test_bench_stability_calls_the_noise_sweep_study(monkeypatch, capsys):
     assert main(["bench", "stability", "--cases", "12", "--seed", "5"]) == 0
     assert json.loads(capsys.readouterr().out) == {"cases": 12, "failures": 0}
     assert calls == {"cases": 12, "seed": 5, "progress": True}
+
+
+def test_core_works_without_the_extras(tmp_path):
+    """import optitact, the pipeline, JSON calibrations, forces, batch and the CLI need none of the extras;
+    a plot without matplotlib is a one-line error naming the extra."""
+    code = (
+        "import sys\n"
+        "for m in ('matplotlib', 'zarr', 'dask', 'distributed', 'mitsuba', 'drjit', 'sklearn',\n"
+        "          'dtaidistance'):\n"
+        "    sys.modules[m] = None\n"
+        "import numpy as np, optitact, optitact.pipeline, optitact.calib, optitact.forces, optitact.batch\n"
+        "import optitact.cli, optitact.render\n"
+        "cal = optitact.calib.default_calibration()\n"
+        "r = cal.pipeline().process(np.zeros(cal.camera.shape, np.uint8))\n"
+        "field = cal.apply(r)\n"
+        "assert field.local.shape == (41, 3)\n"
+        "try:\n"
+        "    field.save_plot('x.png', np.zeros(cal.camera.shape), cal.camera)\n"
+        "except optitact.errors.MissingExtraError as e:\n"
+        "    assert \"pip install 'optitact[plot]'\" in str(e), e\n"
+        "else:\n"
+        "    raise SystemExit('plotted without matplotlib')\n"
+        "assert optitact.cli.main(['render', '--forces', 'none.csv', '--out', 'x.png']) == 2\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)

@@ -275,3 +275,17 @@ def test_pixel_rendering_inputs(noload_bg):
     ]:
         with pytest.raises(exc, match=match):
             render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=1, **kw)
+
+
+def test_full_output_returns_what_the_render_measured():
+    """render() returns the radiance; full_output=True a RenderResult with the samples used (no dict filled)."""
+    from optitact.render import RenderResult
+
+    cam = optitact.FisheyeCamera(width=32, height=24)
+    bg = np.full(cam.shape, 0.25, np.float32)
+    none = np.zeros(cam.shape, bool)
+    out = render(SENSOR, np.zeros((41, 3)), camera=cam, pixels=none, background=bg, full_output=True)
+    assert isinstance(out, RenderResult) and out.spp == 0
+    np.testing.assert_array_equal(out.radiance, bg)
+    plain = render(SENSOR, np.zeros((41, 3)), camera=cam, pixels=none, background=bg)
+    assert isinstance(plain, np.ndarray)
