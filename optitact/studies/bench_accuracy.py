@@ -10,6 +10,7 @@ import sys
 import numpy as np
 
 from optitact._validate import integer
+from optitact.errors import InputError
 from optitact.camera import FisheyeCamera
 
 __all__ = ["bench_accuracy"]
@@ -84,7 +85,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     cs = get(calibration_set, frames, seed, "calibration", spp, render_mode)
     ts = get(test_set, test_frames, seed + 1000, "test", test_spp, test_render_mode)
     if ts.attrs["seed"] == cs.attrs["seed"]:
-        raise ValueError("the held-out set must have another seed than the calibration set")
+        raise InputError("the held-out set must have another seed than the calibration set")
     truth = ts.forces()
     readings = ts.readings()
     design = cs.attrs["design"]
