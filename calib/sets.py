@@ -289,23 +289,16 @@ def _make_frame(maker: FrameMaker, forces, seed: int) -> dict:
 
 def _distributed(scheduler, maker: FrameMaker, todo, forces, seeds, token: str):
     """Run frames on a Dask cluster; yield ``(index, readings)`` as they finish."""
-    distributed = require("distributed", purpose="calibration sets on a cluster")
-    Client, as_completed = distributed.Client, distributed.as_completed
-    own = not isinstance(scheduler, Client)
-    if own and not isinstance(scheduler, str):
-        raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
-                        f"{type(scheduler).__name__}")
-    client = Client(scheduler) if own else scheduler
-    try:
+    from optitact._cluster import dask_client
+
+    as_completed = require("distributed", purpose="calibration sets on a cluster").as_completed
+    with dask_client(scheduler, purpose="calibration sets on a cluster") as client:
         [remote] = client.scatter([maker], broadcast=True, hash=False)
         tag = hashlib.sha256(token.encode()).hexdigest()[:12]
         futures = {client.submit(_make_frame, remote, forces[i], int(seeds[i]), key=f"optitact-frame-{tag}-{i}",
                                  retries=3, pure=False): int(i) for i in todo}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
-    finally:
-        if own:
-            client.close()
 
 
 def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor | None = None,

@@ -227,20 +227,11 @@ def _results(pipe, cal, files, head, rest, batch, scheduler):
         for names, stack in _batches(rest, pipe.camera.shape, batch):
             yield _read(pipe, cal, names, stack)
         return
-    from ._optional import require
+    from ._cluster import dask_client
 
-    client_cls = require("distributed", purpose="batch processing on a cluster").Client
-    own = not isinstance(scheduler, client_cls)
-    if own and not isinstance(scheduler, str):
-        raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
-                        f"{type(scheduler).__name__}")
-    client = client_cls(scheduler) if own else scheduler
-    try:
+    with dask_client(scheduler, purpose="batch processing on a cluster") as client:
         [p] = client.scatter([pipe], broadcast=True, hash=False)
         futures = [client.submit(_read_file, p, cal, f, batch, retries=3, pure=False) for f in files]
         for fut in futures:  # in file order: the table is the same as a local run's
             yield from fut.result()
-    finally:
-        if own:
-            client.close()
 

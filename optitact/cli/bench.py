@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ._args import positive_int, seed_int, size
+from ._args import image_size_parent, plot_parent, positive_int, seed_parent, size, variant_parent
 
 __all__ = ["add_parsers"]
 
@@ -22,7 +22,9 @@ def add_parsers(sub) -> None:
                     "medians over repeats in one run. Output: one JSON object on stdout.")
     bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
     brender = bsub.add_parser(
-        "render", help="render time against the error it leaves, per mode and setting",
+        "render", parents=[image_size_parent(), variant_parent(),
+                           plot_parent("save error against time (log-log) per mode")],
+        help="render time against the error it leaves, per mode and setting",
         description="For fixed load cases (1, 5 and 41 loaded elements, light and heavy), render "
                     "with each mode (brute: path-traced full frames; pixels: path-traced, only the "
                     "pixels the pipeline reads for the loaded elements, over the cached no-load "
@@ -52,13 +54,9 @@ def add_parsers(sub) -> None:
                          help="renders per row; medians and RMS over them (default 1)")
     brender.add_argument("--target", type=float, default=0.5,
                          help="force error (%% FS) for the headline figures (default 0.5)")
-    brender.add_argument("--width", type=positive_int, default=640)
-    brender.add_argument("--height", type=positive_int, default=480)
-    brender.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
-    brender.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
-                         help="save error against time (log-log) per mode")
     bpipe = bsub.add_parser(
-        "pipeline", help="frames/s of the fast and reference pipelines vs one pass over the frame",
+        "pipeline", parents=[seed_parent(), variant_parent()],
+        help="frames/s of the fast and reference pipelines vs one pass over the frame",
         description="Render (once, then cached in the user cache folder) a frame with all 41 "
                     "elements loaded at each size, expose it with several noise seeds, and time "
                     "the fast pipeline frame by frame and as a batch, the reference pipeline, and "
@@ -72,10 +70,11 @@ def add_parsers(sub) -> None:
                        help="timing repeats; medians are reported (default 5)")
     bpipe.add_argument("--spp", type=positive_int, default=64,
                        help="samples per pixel of the renders (default 64)")
-    bpipe.add_argument("--seed", type=seed_int, default=0, help="seed (default 0)")
-    bpipe.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
     bacc = bsub.add_parser(
-        "accuracy", help="force errors of both models on a held-out synthetic set",
+        "accuracy", parents=[seed_parent("seed of the calibration set; the held-out set uses seed + 1000"),
+                             variant_parent(),
+                             plot_parent("save estimated vs true forces of both models as PNG")],
+        help="force errors of both models on a held-out synthetic set",
         description="Fit both models on a calibration set and report force errors on a held-out "
                     "set (disjoint seeds, independent forces) at the nominal CCD noise. Sets "
                     "are generated once and cached in the user cache folder, or given.")
@@ -97,20 +96,15 @@ def add_parsers(sub) -> None:
                       help="use this calibration set instead of generating one")
     bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this held-out set instead of generating one")
-    bacc.add_argument("--seed", type=seed_int, default=0,
-                      help="seed of the calibration set; the held-out set uses seed + 1000")
-    bacc.add_argument("--variant", default=None, help="Mitsuba variant (default: fastest)")
-    bacc.add_argument("--plot", type=Path, default=None, metavar="ERRORS.png",
-                      help="save estimated vs true forces of both models as PNG")
     bstab = bsub.add_parser(
-        "stability", help="stress cases of every stage and the noise sweep against the Cramer-Rao bound",
+        "stability", parents=[seed_parent()],
+        help="stress cases of every stage and the noise sweep against the Cramer-Rao bound",
         description="Run the generated stress cases (frames, readings at the edge, calibration files "
                     "and fits, accumulation, renderer inputs) and the Monte Carlo noise sweep of G "
                     "and u against the Cramer-Rao bound. Output: one JSON object with cases, "
                     "failures, noise_sweep and nominal.")
     bstab.add_argument("--cases", type=positive_int, default=10000,
                        help="generated stress cases (default 10000)")
-    bstab.add_argument("--seed", type=seed_int, default=0, help="seed (default 0)")
 
     for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab)):
         p.set_defaults(run=BENCHES[name])
