@@ -38,7 +38,6 @@ largest fitted shift) readings are clamped to the range and flagged.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -48,7 +47,9 @@ from pathlib import Path
 import numpy as np
 
 from optitact.camera import FisheyeCamera
+from optitact._validate import check_keys, check_type
 from optitact.errors import InputError, ShapeError
+from optitact.io import atomic_write_text, json_fingerprint
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
@@ -75,9 +76,10 @@ class CalibrationMismatchError(InputError):
 
 def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict) -> str:
     """Short hash of the sensor, camera and pipeline options a calibration belongs to."""
-    key = json.dumps({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
-                      "pipeline": _plain(pipeline_options)}, sort_keys=True)
-    return hashlib.sha256(key.encode()).hexdigest()[:16]
+    check_type(sensor, DomeSensor, "sensor")
+    check_type(camera, FisheyeCamera, "camera")
+    return json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
+                             "pipeline": _plain(pipeline_options)}, 16)
 
 
 def _plain(options: dict) -> dict:
@@ -381,11 +383,7 @@ class Calibration:
         fitted ranges, residuals, and the sensor, camera and pipeline with
         their fingerprint.
         """
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
-        os.replace(tmp, path)
-        return path
+        return atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
 
     @classmethod
     def from_dict(cls, d) -> Calibration:
@@ -426,10 +424,7 @@ class Calibration:
             raise InputError(f"calibration 'camera' is not a valid camera: {exc}") from None
         if not isinstance(d["pipeline"], dict):
             raise InputError("calibration 'pipeline' must be an object of Pipeline options")
-        unknown = sorted(str(k) for k in d["pipeline"] if k not in PIPELINE_KEYS)
-        if unknown:
-            raise InputError(f"calibration 'pipeline' has unknown option(s) {unknown}; valid: "
-                             f"{list(PIPELINE_KEYS)}")
+        check_keys(d["pipeline"], PIPELINE_KEYS, "calibration 'pipeline'", noun="option")
         for key in ("residuals_n", "provenance"):
             if not isinstance(d.get(key, {}), dict):
                 raise InputError(f"calibration {key!r} must be an object, got "

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from optitact.io import atomic_write_png_figure
+
 __all__ = ["plot_fit", "plot_errors"]
 
 #: One element per ring of the default sensor (apex, 22.5, 45 and 67.5 degrees).
@@ -14,9 +16,9 @@ RING_EXAMPLES = (0, 1, 9, 25)
 
 
 def _figure(nrows: int, ncols: int, size: tuple[float, float]):
-    from matplotlib.figure import Figure
+    from optitact._optional import require
 
-    return Figure(figsize=size, layout="constrained")
+    return require("matplotlib.figure", purpose="plots").Figure(figsize=size, layout="constrained")
 
 
 def plot_fit(cal, readings, forces, path: str | os.PathLike) -> Path:
@@ -65,9 +67,7 @@ def plot_fit(cal, readings, forces, path: str | os.PathLike) -> Path:
         ax.hist((est[..., k] - f[..., k]).ravel(), bins=60, histtype="step", label=name)
     ax.set(xlabel="estimate - truth (N)", ylabel="samples", title="residuals")
     ax.legend(fontsize=8)
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    return path
+    return atomic_write_png_figure(fig, path, dpi=100)
 
 
 def plot_errors(truth, estimates: dict, path: str | os.PathLike) -> Path:
@@ -84,6 +84,4 @@ def plot_errors(truth, estimates: dict, path: str | os.PathLike) -> Path:
         ax.plot(lim, lim, "k-", lw=0.8)
         ax.set(xlabel="true force (N)", ylabel="estimated force (N)", title=f"model {model}")
         ax.legend(fontsize=8)
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    return path
+    return atomic_write_png_figure(fig, path, dpi=100)

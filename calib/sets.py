@@ -14,7 +14,6 @@ identical to an uninterrupted run.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import sys
@@ -23,10 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from optitact._optional import require
 from optitact._validate import integer, positive, seed_value
 from optitact.camera import FisheyeCamera
 from optitact.ccd import CCD
 from optitact.errors import InputError
+from optitact.io import json_fingerprint
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
@@ -161,7 +162,7 @@ class CalibrationSet:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
-        import zarr
+        zarr = require("zarr", purpose="calibration sets")
 
         self.path = Path(path)
         if not self.path.exists():
@@ -288,25 +289,16 @@ def _make_frame(maker: FrameMaker, forces, seed: int) -> dict:
 
 def _distributed(scheduler, maker: FrameMaker, todo, forces, seeds, token: str):
     """Run frames on a Dask cluster; yield ``(index, readings)`` as they finish."""
-    try:
-        from distributed import Client, as_completed
-    except ImportError as exc:  # pragma: no cover - a dependency
-        raise InputError("scheduler= needs dask.distributed (pip install 'dask[distributed]')") from exc
-    own = not isinstance(scheduler, Client)
-    if own and not isinstance(scheduler, str):
-        raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
-                        f"{type(scheduler).__name__}")
-    client = Client(scheduler) if own else scheduler
-    try:
+    from optitact._cluster import dask_client
+
+    as_completed = require("distributed", purpose="calibration sets on a cluster").as_completed
+    with dask_client(scheduler, purpose="calibration sets on a cluster") as client:
         [remote] = client.scatter([maker], broadcast=True, hash=False)
         tag = hashlib.sha256(token.encode()).hexdigest()[:12]
         futures = {client.submit(_make_frame, remote, forces[i], int(seeds[i]), key=f"optitact-frame-{tag}-{i}",
                                  retries=3, pure=False): int(i) for i in todo}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
-    finally:
-        if own:
-            client.close()
 
 
 def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor | None = None,
@@ -374,8 +366,9 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     InputError
         If ``path`` holds a set made with other parameters.
     """
-    import zarr
     from tqdm import tqdm
+
+    zarr = require("zarr", purpose="calibration sets")
 
     from optitact.pipeline import Pipeline
     from optitact.render import RenderSettings, render
@@ -411,8 +404,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
 
         table = table if table is not None else emission_table(sensor, camera, variant=variant,
                                                                progress=progress)
-        attrs["two_stage_table"] = hashlib.sha256(
-            json.dumps(table.to_dict()["radiance"]).encode()).hexdigest()[:16]
+        attrs["two_stage_table"] = json_fingerprint(table.to_dict()["radiance"], 16)
     path = Path(path)
     n_el, (h, w) = sensor.n_elements, camera.shape
     if path.exists() and (path / "zarr.json").is_file():

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import finite, positive, real_array
-from optitact.camera import FisheyeCamera, _radial_map
+from optitact.camera import FisheyeCamera
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
 from optitact.io import csv_numbers, csv_rows
@@ -380,10 +380,12 @@ class ForceField:
         pixel centre; they are drawn at ``x = col``, ``y = row`` (row axis
         pointing down), so the picture matches the frame.
         """
-        from matplotlib.colors import Normalize
-        from matplotlib.figure import Figure
-        from matplotlib.lines import Line2D
-        from matplotlib.patches import FancyArrowPatch
+        from optitact._optional import require
+
+        Normalize = require("matplotlib.colors", purpose="plots").Normalize
+        Figure = require("matplotlib.figure", purpose="plots").Figure
+        Line2D = require("matplotlib.lines", purpose="plots").Line2D
+        FancyArrowPatch = require("matplotlib.patches", purpose="plots").FancyArrowPatch
 
         if not isinstance(camera, FisheyeCamera):
             raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
@@ -460,7 +462,7 @@ class ForceField:
     def _visible_tips(self, camera: FisheyeCamera, idx: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Pixels of the arrow tips ``dome_point(idx, offset)``, cut where they leave the camera's view."""
         s = self.sensor
-        theta_max = _radial_map(s, camera.z).theta_max - 1e-9
+        theta_max = camera.max_polar_angle(s) - 1e-9
 
         def theta(frac):
             p = s.dome_point(idx, offset * frac[:, None])
@@ -480,10 +482,9 @@ class ForceField:
     def save_plot(self, path: str | os.PathLike, frame: np.ndarray, camera: FisheyeCamera,
                   **kwargs) -> Path:
         """Save :meth:`plot` as a PNG (100 dpi) and return the path; ``kwargs`` go to :meth:`plot`."""
-        path = Path(path)
-        fig = self.plot(frame, camera, **kwargs)
-        fig.savefig(path, dpi=100, format="png")
-        return path
+        from optitact.io import atomic_write_png_figure
+
+        return atomic_write_png_figure(self.plot(frame, camera, **kwargs), path, dpi=100)
 
 
 # ----------------------------------------------------------------------------- friction, slip, contact

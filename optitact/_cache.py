@@ -7,12 +7,13 @@ The folder is ``$OPTITACT_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/optitact``
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+
+from .io import json_fingerprint, write_npy
 
 __all__ = ["cache_dir", "cached_render"]
 
@@ -44,12 +45,10 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
     used = select_variant(variant)[1]
     settings = RenderSettings() if settings is None else settings
     f = np.ascontiguousarray(forces, dtype=np.float64)
-    key = json.dumps({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "spp": spp,
-                      "seed": seed, "settings": asdict(settings), "variant": used,
-                      "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest(),
-                      "spot_pixels_only": bool(spot_pixels_only)},
-                     sort_keys=True)
-    name = hashlib.sha256(key.encode()).hexdigest()[:24]
+    name = json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "spp": spp,
+                             "seed": seed, "settings": asdict(settings), "variant": used,
+                             "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest(),
+                             "spot_pixels_only": bool(spot_pixels_only)}, 24)
     path = cache_dir() / "renders" / f"{name}.npy"
     if path.is_file():
         return np.load(path)
@@ -60,9 +59,5 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
                      pixels=spot_pixels(sensor, camera, f))
     else:
         img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    with tmp.open("wb") as fh:
-        np.save(fh, img)
-    os.replace(tmp, path)
+    write_npy(path, img)
     return img

@@ -86,11 +86,19 @@ def seed_value(seed, name: str = "seed") -> int | None:
     return integer(seed, name, minimum=0)
 
 
-def check_keys(d, allowed, what: str, *, required=()) -> dict:
+def check_type(value, cls: type, name: str):
+    """Return ``value`` if it is a ``cls``; a TypeError naming ``name`` otherwise."""
+    if not isinstance(value, cls):
+        raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+    return value
+
+
+def check_keys(d, allowed, what: str, *, required=(), noun: str = "key") -> dict:
     """Check a dict read from a file: a mapping whose keys are among ``allowed``.
 
-    Unknown keys are an :class:`InputError` listing them and the valid ones;
-    so are missing ``required`` keys; a non-mapping is a TypeError.
+    Unknown keys are an :class:`InputError` listing them and the valid ones
+    (``"<what>: unknown <noun>(s) [...]; valid: [...]"``); so are missing
+    ``required`` keys; a non-mapping is a TypeError. Returns a plain dict copy.
     """
     from collections.abc import Mapping
 
@@ -99,10 +107,10 @@ def check_keys(d, allowed, what: str, *, required=()) -> dict:
     allowed = set(allowed)
     unknown = sorted(set(map(str, d)) - allowed)
     if unknown:
-        raise InputError(f"{what}: unknown key(s) {unknown}; valid: {sorted(allowed)}")
+        raise InputError(f"{what}: unknown {noun}(s) {unknown}; valid: {sorted(allowed)}")
     missing = [k for k in required if k not in d]
     if missing:
-        raise InputError(f"{what}: missing key(s) {missing}")
+        raise InputError(f"{what}: missing {noun}(s) {missing}")
     return dict(d)
 
 

@@ -19,11 +19,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._validate import finite, integer, positive, real_array, shape_tail
+from ._validate import check_keys, check_type, finite, integer, positive, real_array, shape_tail
 from .errors import InputError
 from .sensor import DomeSensor
 
-__all__ = ["FisheyeCamera", "pixel_from_dome", "dome_from_pixel"]
+__all__ = ["FisheyeCamera", "RadialMap", "pixel_from_dome", "dome_from_pixel", "radial_map"]
 
 #: Largest distance (mm) a point given to :func:`pixel_from_dome` may lie off the outer surface.
 SURFACE_TOLERANCE = 1e-4
@@ -77,13 +77,7 @@ class FisheyeCamera:
     @classmethod
     def from_dict(cls, d: dict) -> FisheyeCamera:
         """Build a camera from :meth:`to_dict` output; unknown keys are a ValueError."""
-        if not isinstance(d, dict):
-            raise TypeError(f"camera parameters must be a dict, got {type(d).__name__}")
-        valid = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - valid)
-        if unknown:
-            raise InputError(f"unknown camera parameters {unknown}; valid: {sorted(valid)}")
-        return cls(**d)
+        return cls(**check_keys(d, [f.name for f in fields(cls)], "camera parameters", noun="parameter"))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -148,10 +142,19 @@ class FisheyeCamera:
         """(H, W) bool: pixel centres whose ray reaches the outer dome surface (z >= 0)."""
         rows, cols = np.mgrid[0:self.height, 0:self.width]
         alpha, _ = self._polar_from_pixel(np.stack([rows, cols], axis=-1))
-        return alpha <= _radial_map(sensor, self.z).alpha_max
+        return alpha <= radial_map(sensor, self.z).alpha_max
+
+    def max_polar_angle(self, sensor: DomeSensor) -> float:
+        """The largest polar angle (rad, from the dome axis) of an outer-surface point this camera sees.
+
+        Points farther from the apex are hidden below the inner surface's base
+        (seen only through the rim); about 88.35 deg for the default sensor
+        and camera. See :func:`radial_map`.
+        """
+        return radial_map(sensor, self.z).theta_max
 
 
-class _RadialMap:
+class RadialMap:
     """Polar angle of the seen dome point as a function of the ray angle, and its inverse.
 
     The camera is on the axis, so the map is rotationally symmetric: a ray at
@@ -212,13 +215,26 @@ class _RadialMap:
 
 
 @lru_cache(maxsize=32)
-def _radial_map_cached(r_in: float, r_out: float, n: float, zc: float) -> _RadialMap:
-    return _RadialMap(r_in, r_out, n, zc)
+def _radial_map_cached(r_in: float, r_out: float, n: float, zc: float) -> RadialMap:
+    return RadialMap(r_in, r_out, n, zc)
 
 
-def _radial_map(sensor: DomeSensor, zc: float) -> _RadialMap:
+def radial_map(sensor: DomeSensor, zc: float) -> RadialMap:
+    """The radial map of an on-axis camera at height ``zc`` (mm) inside ``sensor`` (cached).
+
+    ``radial_map(sensor, camera.z).theta(alpha)`` is the polar angle of the
+    outer-surface point seen by a ray at angle ``alpha`` from the axis;
+    ``theta_max`` and ``alpha_max`` bound what the camera sees (see
+    :meth:`FisheyeCamera.max_polar_angle`).
+    """
+    check_type(sensor, DomeSensor, "sensor")
     return _radial_map_cached(sensor.inner_radius, sensor.outer_radius,
                               sensor.refractive_index, float(zc))
+
+
+def _check_optics(sensor, camera) -> None:
+    check_type(sensor, DomeSensor, "sensor")
+    check_type(camera, FisheyeCamera, "camera")
 
 
 def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.ndarray:
@@ -251,6 +267,7 @@ def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.
     inverted by Newton's method from a tabulated start; the round trip with
     :func:`dome_from_pixel` is exact to ~1e-12 mm.
     """
+    _check_optics(sensor, camera)
     p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
     radius = np.linalg.norm(p, axis=-1)
     off = np.abs(radius - sensor.outer_radius)
@@ -263,7 +280,7 @@ def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.
         raise InputError(f"points must have z >= 0 (on the dome), got z = {p[..., 2].min():.6g}")
     theta = np.arctan2(np.hypot(p[..., 0], p[..., 1]), p[..., 2])
     phi = np.arctan2(p[..., 1], p[..., 0])
-    rmap = _radial_map(sensor, camera.z)
+    rmap = radial_map(sensor, camera.z)
     if np.any(theta > rmap.theta_max + 1e-12):
         raise InputError(
             f"points must be visible through the inner surface (polar angle <= "
@@ -298,10 +315,11 @@ def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: FisheyeCamera,
     -----
     See :func:`pixel_from_dome` for the optics.
     """
+    _check_optics(sensor, camera)
     if outside not in ("raise", "nan"):
         raise InputError(f"outside must be 'raise' or 'nan', got {outside!r}")
     alpha, phi = camera._polar_from_pixel(pixels)
-    rmap = _radial_map(sensor, camera.z)
+    rmap = radial_map(sensor, camera.z)
     miss = alpha > rmap.alpha_max * (1 + 1e-12)
     if outside == "raise" and np.any(miss):
         raise InputError(

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import finite, integer, positive, real_array, seed_value
+from ._validate import check_keys, finite, integer, positive, real_array, seed_value
 from .errors import InputError, ShapeError
 
 __all__ = ["CCD"]
@@ -400,13 +400,7 @@ class CCD:
         >>> CCD.from_dict({"bits": 10, "read_noise": 5.0}).bits
         10
         """
-        if not isinstance(d, Mapping):
-            raise TypeError(f"d must be a mapping of CCD fields, got {type(d).__name__}")
-        valid = [f.name for f in fields(cls)]
-        unknown = sorted(str(k) for k in d if k not in valid)
-        if unknown:
-            raise InputError(f"d has unknown CCD field(s) {unknown}; valid fields are {valid}")
-        return cls(**d)
+        return cls(**check_keys(d, [f.name for f in fields(cls)], "d (CCD fields)", noun="field"))
 
     # ------------------------------------------------------------------ #
     # Input checks

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import finite, real_array
+from ._validate import check_type, finite, real_array
 from .errors import InputError, ShapeError
 from .sensor import DomeSensor
 
@@ -95,6 +95,7 @@ def check_forces(forces, sensor: DomeSensor, name: str = "forces") -> np.ndarray
         For NaN, infinity, or a component beyond ``MAX_FORCE_N`` (1e6 N) in
         magnitude.
     """
+    check_type(sensor, DomeSensor, "sensor")
     arr = real_array(forces, name)
     if arr.shape != (sensor.n_elements, 3):
         raise ShapeError(

@@ -21,7 +21,7 @@ import numpy as np
 from .errors import InputError, ShapeError
 
 __all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
-           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint"]
+           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -57,18 +57,30 @@ def atomic_write_png_figure(fig, path: str | os.PathLike, *, dpi: int = 110) -> 
     return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
 
 
+def write_npy(path: str | os.PathLike, array) -> Path:
+    """Save an array as ``.npy`` at exactly ``path``, atomically (:func:`atomic_write`)."""
+
+    def write(tmp: Path) -> None:
+        with tmp.open("wb") as fh:
+            np.save(fh, np.asarray(array))
+
+    return atomic_write(path, write)
+
+
 def json_fingerprint(obj, n: int = 16) -> str:
-    """The first ``n`` hex digits of the SHA-256 of ``obj`` as sorted, compact JSON.
+    """The first ``n`` hex digits of the SHA-256 of ``obj`` as JSON with sorted keys.
 
     Equal settings give equal fingerprints on every machine and run (keys
-    sorted, floats written by ``repr``).
+    sorted, floats written by ``repr``, ``json.dumps``' default separators:
+    the calibration files' fingerprints and the cache keys written before
+    this helper existed keep their values).
 
     Examples
     --------
     >>> json_fingerprint({"b": 1, "a": [1.0, 2]}) == json_fingerprint({"a": [1.0, 2], "b": 1})
     True
     """
-    key = json.dumps(obj, sort_keys=True, separators=(",", ":"))
+    key = json.dumps(obj, sort_keys=True)
     return hashlib.sha256(key.encode()).hexdigest()[:n]
 
 
@@ -151,30 +163,40 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
 
 
 def write_forces_csv(path: str | os.PathLike, forces: np.ndarray) -> None:
-    """Write element-local forces (N, 3) as ``element, fx, fy, fz`` CSV with a header."""
+    """Write element-local forces (N, 3) as ``element, fx, fy, fz`` CSV with a header (atomically)."""
     f = np.asarray(forces, dtype=np.float64)
     if f.ndim != 2 or f.shape[1] != 3:
         raise ShapeError(f"forces must have shape (N, 3), got {f.shape}")
-    with Path(path).open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(_HEADERS[1])
-        for i, row in enumerate(f):
-            w.writerow([i, *(repr(float(v)) for v in row)])
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(_HEADERS[1])
+            for i, row in enumerate(f):
+                w.writerow([i, *(repr(float(v)) for v in row)])
+
+    atomic_write(path, write)
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Write a uint8/uint16 greyscale or (H, W, 3) BGR image as PNG (OpenCV)."""
+    """Write a uint8/uint16 greyscale or (H, W, 3) BGR image as PNG (OpenCV, atomically)."""
     import cv2
 
     img = np.asarray(image)
     if img.dtype not in (np.uint8, np.uint16):
         raise TypeError(f"image must be uint8 or uint16, got {img.dtype}")
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"could not write PNG to {path}")
+
+    def write(tmp: Path) -> None:
+        ok, data = cv2.imencode(".png", img)
+        if not ok:
+            raise OSError(f"could not encode a PNG for {path}")
+        tmp.write_bytes(data.tobytes())
+
+    atomic_write(path, write)
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
-    """Write ``obj`` as indented JSON (numpy arrays become lists)."""
+    """Write ``obj`` as indented JSON, atomically (numpy arrays become lists)."""
 
     def default(o):
         if isinstance(o, np.ndarray):
@@ -183,7 +205,7 @@ def write_json(path: str | os.PathLike, obj) -> None:
             return o.item()
         raise TypeError(f"cannot write {type(o).__name__} as JSON")
 
-    Path(path).write_text(json.dumps(obj, indent=2, default=default) + "\n")
+    atomic_write_text(path, json.dumps(obj, indent=2, default=default) + "\n")
 
 
 class ReadingsWriter:
@@ -194,6 +216,10 @@ class ReadingsWriter:
     shortest digits that read back to the same float64), and with ``forces=True`` also
     ``fx, fy, fz`` (element-local, N) and ``clamped`` (the calibration
     clamped the reading to its fitted range). Use as a context manager.
+
+    Rows go to a temporary file beside ``path``, renamed to ``path`` on
+    :meth:`close`: a reader never sees half a table. Leaving the ``with``
+    block by an exception discards the rows and leaves ``path`` untouched.
     """
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
@@ -202,7 +228,9 @@ class ReadingsWriter:
     def __init__(self, path: str | os.PathLike, *, forces: bool = False) -> None:
         self.path = Path(path)
         self.with_forces = forces
-        self._fh = self.path.open("w", newline="")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.path.with_name(f".{self.path.stem}.{os.getpid()}.tmp{self.path.suffix}")
+        self._fh = self._tmp.open("w", newline="")
         self._csv = csv.writer(self._fh)
         self._csv.writerow(self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))
         self.frames = 0
@@ -233,11 +261,22 @@ class ReadingsWriter:
             self.frames += 1
 
     def close(self) -> None:
-        """Close the file."""
+        """Close the file and move it to ``path`` (again: nothing)."""
+        if self._fh.closed:
+            return
         self._fh.close()
+        os.replace(self._tmp, self.path)
+
+    def discard(self) -> None:
+        """Close and delete the rows written so far; ``path`` is left as it was."""
+        self._fh.close()
+        self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> ReadingsWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.discard()

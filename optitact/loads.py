@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validate import positive
+from ._validate import check_type, positive
 from .errors import InputError
 from .sensor import DomeSensor
 
@@ -45,6 +45,7 @@ def indenter_load(sensor: DomeSensor, *, polar_deg: float = 30.0, azimuth_deg: f
     distance from the indenter centre to element ``i``; the shear is
     ``shear_ratio Fz_i`` along the projected drag direction.
     """
+    check_type(sensor, DomeSensor, "sensor")
     peak = positive(peak, "peak", allow_zero=True)
     width = positive(width, "width")
     shear_ratio = positive(shear_ratio, "shear_ratio", allow_zero=True)
@@ -92,6 +93,8 @@ def random_load(sensor: DomeSensor, *, fz_range: tuple[float, float] = (0.1, 1.0
         ``(Fx, Fy, Fz)`` per element; unloaded elements are zero.
     """
     from ._validate import seed_value
+
+    check_type(sensor, DomeSensor, "sensor")
 
     lo, hi = (positive(v, "fz_range[]", allow_zero=True) for v in fz_range)
     if not lo <= hi:

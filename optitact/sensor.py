@@ -18,7 +18,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ._validate import integer, positive
+from ._validate import check_keys, integer, positive
 from .errors import InputError
 
 __all__ = ["DomeSensor"]
@@ -159,13 +159,7 @@ class DomeSensor:
     @classmethod
     def from_dict(cls, d: dict) -> DomeSensor:
         """Build a sensor from :meth:`to_dict` output; unknown keys are a ValueError."""
-        if not isinstance(d, dict):
-            raise TypeError(f"sensor parameters must be a dict, got {type(d).__name__}")
-        valid = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - valid)
-        if unknown:
-            raise InputError(f"unknown sensor parameters {unknown}; valid: {sorted(valid)}")
-        kw = dict(d)
+        kw = check_keys(d, [f.name for f in fields(cls)], "sensor parameters", noun="parameter")
         for key in ("ring_counts", "ring_polar_deg"):
             if key in kw:
                 kw[key] = tuple(kw[key])

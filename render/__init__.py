@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import re
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,14 +32,32 @@ from optitact.sensor import DomeSensor
 from ._backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
 from .scene import RenderSettings
 
-__all__ = ["render", "render_contacts", "spot_pixels", "RenderSettings", "select_variant", "TRANSPORTS",
-           "active_variant", "find_libllvm", "PREFERRED_VARIANTS", "pass_seeds"]
+__all__ = ["render", "render_contacts", "RenderResult", "spot_pixels", "RenderSettings", "select_variant",
+           "TRANSPORTS", "active_variant", "find_libllvm", "PREFERRED_VARIANTS", "pass_seeds"]
 
 _VARIANT_NAME = re.compile(r"^(scalar|llvm|cuda)(_ad)?_(rgb|mono|spectral)(_polarized)?(_double)?$")
 #: Light transport modes of :func:`render`.
 TRANSPORTS = ("path", "two_stage")
 #: Samples per pixel rendered in one Mitsuba launch; larger spp runs as several passes.
 SPP_PER_PASS = 16
+
+
+@dataclass(frozen=True, eq=False)
+class RenderResult:
+    """What :func:`render` returns with ``full_output=True``.
+
+    Attributes
+    ----------
+    radiance : (H, W) float32 ndarray
+        The image :func:`render` returns by default.
+    spp : int or None
+        Samples per pixel rendered (with ``target_error``, where the passes
+        stopped; 0 when no pixel was rendered); None for
+        ``transport="two_stage"``, which has no Monte Carlo samples.
+    """
+
+    radiance: np.ndarray
+    spp: int | None
 
 
 def pass_seeds(seed: int, n_passes: int) -> list[int]:
@@ -78,7 +97,7 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
            crop: tuple[int, int, int, int] | None = None, pixels=None, background=None,
            progress: bool = False, transport: str = "path", n_sub: int = 8,
            table=None, target_error: float | None = None, max_spp: int = 4096,
-           stats: dict | None = None) -> np.ndarray:
+           full_output: bool = False) -> np.ndarray | RenderResult:
     """Render the radiance image the camera sees for element-local forces.
 
     Parameters
@@ -132,12 +151,14 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
         spread of the passes, or ``max_spp`` is reached.
     max_spp : int
         Most samples per pixel with ``target_error`` (default 4096).
-    stats : dict, optional
-        Filled with what the render did: ``spp`` (samples per pixel used).
+    full_output : bool
+        Return a :class:`RenderResult` (the radiance and what the render
+        measured, e.g. the samples per pixel ``target_error`` used) instead of
+        the radiance alone.
 
     Returns
     -------
-    (H, W) float32 ndarray
+    (H, W) float32 ndarray, or RenderResult with ``full_output=True``
         Radiance (arbitrary units, linear in ``settings.rim_radiance``).
 
     Notes
@@ -151,20 +172,17 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
     f = check_forces(forces, sensor)
     windows = None
     if target_error is not None:
-        from optitact.pipeline import _fold, split_regions
-
         cam = FisheyeCamera() if camera is None else camera
         if not isinstance(cam, FisheyeCamera):
             raise TypeError(f"camera must be a FisheyeCamera, got {type(cam).__name__}")
-        fold = _fold(split_regions(sensor, cam), cam.shape)
+        pixel, label = _loaded_region_pixels(sensor, cam, f)
         windows = np.full(cam.height * cam.width, -1, np.int64)
-        loaded = np.isin(fold.label, np.flatnonzero(f[:, 2] > 0))
-        windows[fold.pixel[loaded]] = fold.label[loaded]
+        windows[pixel] = label
     return render_contacts(sensor, contact_patches(sensor, forces), camera=camera, spp=spp,
                            seed=seed, variant=variant, settings=settings, crop=crop,
                            pixels=pixels, background=background, progress=progress,
                            transport=transport, n_sub=n_sub, table=table, target_error=target_error,
-                           max_spp=max_spp, windows=windows, stats=stats)
+                           max_spp=max_spp, windows=windows, full_output=full_output)
 
 
 def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
@@ -173,7 +191,8 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                     crop: tuple[int, int, int, int] | None = None, pixels=None,
                     background=None, progress: bool = False, transport: str = "path",
                     n_sub: int = 8, table=None, target_error: float | None = None,
-                    max_spp: int = 4096, windows=None, stats: dict | None = None) -> np.ndarray:
+                    max_spp: int = 4096, windows=None,
+                    full_output: bool = False) -> np.ndarray | RenderResult:
     """Render given contact patches (e.g. from :func:`optitact.contact_patches`).
 
     Parameters are those of :func:`render`, with ``contacts`` in place of
@@ -182,6 +201,16 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
     flat (H*W,) int array labelling the pixels whose sums must converge
     (-1: none), which :func:`render` makes from the loaded elements' regions.
     """
+    img, spp = _render_contacts(sensor, contacts, camera=camera, spp=spp, seed=seed, variant=variant,
+                                settings=settings, crop=crop, pixels=pixels, background=background,
+                                progress=progress, transport=transport, n_sub=n_sub, table=table,
+                                target_error=target_error, max_spp=max_spp, windows=windows)
+    return RenderResult(img, spp) if full_output else img
+
+
+def _render_contacts(sensor, contacts, *, camera, spp, seed, variant, settings, crop, pixels, background,
+                     progress, transport, n_sub, table, target_error, max_spp, windows):
+    """:func:`render_contacts`: the radiance and the samples per pixel used (None for two_stage)."""
     if not isinstance(sensor, DomeSensor):
         raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
     if not isinstance(contacts, Contacts):
@@ -205,7 +234,7 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
             raise InputError("target_error is for transport='path' (two_stage has no Monte Carlo noise)")
         return _render_two_stage(sensor, contacts, camera, settings, crop=crop, pixels=pixels,
                                  background=background, n_sub=n_sub, table=table, variant=variant,
-                                 progress=progress)
+                                 progress=progress), None
     index, background = _check_pixels(pixels, background, camera, crop)
     if target_error is not None:
         target_error = positive(target_error, "target_error")
@@ -217,7 +246,7 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
             raise InputError(f"windows must be a flat int array of {camera.height * camera.width} labels, "
                              f"got {windows.dtype} {windows.shape}")
     if index is not None and index.size == 0:
-        return background.copy()
+        return background.copy(), 0
 
     mi, _ = select_variant(variant)
     from .scene import build_scene
@@ -256,15 +285,12 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                 se = arr.std(axis=0, ddof=1) / np.sqrt(len(sums))
                 if np.all(se <= target_error * np.abs(arr.mean(axis=0))):
                     break
-    spp = done
-    if stats is not None:
-        stats["spp"] = spp
-    img = (acc / spp).astype(np.float32)
+    img = (acc / done).astype(np.float32)
     if index is None:
-        return img
+        return img, done
     out = background.copy()
     out.reshape(-1)[index] = img.reshape(-1)[:index.size]
-    return out
+    return out, done
 
 
 def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, background, n_sub, table,
@@ -322,19 +348,24 @@ def _check_pixels(pixels, background, camera: FisheyeCamera, crop):
     return np.flatnonzero(mask), canvas
 
 
+def _loaded_region_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces: np.ndarray):
+    """Flat pixels (and their element) the pipeline reads for the elements with ``Fz > 0``."""
+    from optitact.regions import region_weights, split_regions
+
+    weights = region_weights(split_regions(sensor, camera), camera.shape)
+    return weights.region_pixels(forces[:, 2] > 0)
+
+
 def spot_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces, *,
                 margin: float = 0.0) -> np.ndarray:
     """(H, W) bool: the pixels the pipeline reads for the loaded elements (where spots can show).
 
-    The union of the region footprints (:func:`optitact.pipeline.split_regions`)
+    The union of the region footprints (:func:`optitact.regions.split_regions`)
     of elements with ``Fz > 0``, grown by ``margin`` pixels.
     """
-    from optitact.pipeline import _fold, split_regions
-
     f = check_forces(forces, sensor)
-    fold = _fold(split_regions(sensor, camera), camera.shape)
     mask = np.zeros(camera.height * camera.width, bool)
-    mask[fold.pixel[np.isin(fold.label, np.flatnonzero(f[:, 2] > 0))]] = True
+    mask[_loaded_region_pixels(sensor, camera, f)[0]] = True
     mask = mask.reshape(camera.shape)
     if margin > 0:
         import cv2

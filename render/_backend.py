@@ -113,8 +113,10 @@ def select_variant(requested: str | None = None):
         If ``requested`` (or every variant) cannot run here.
     """
     _configure_llvm()
-    import drjit as dr
-    import mitsuba as mi
+    from optitact._optional import require
+
+    dr = require("drjit", purpose="rendering")
+    mi = require("mitsuba", purpose="rendering")
 
     available = mi.variants()
     if requested is not None:

@@ -212,7 +212,9 @@ def register_fisheye(mi) -> str:
     name = "optitact_fisheye"
     if mi.variant() in _SENSOR_REGISTERED:
         return name
-    import drjit as dr
+    from optitact._optional import require
+
+    dr = require("drjit", purpose="rendering")
 
     class Fisheye(mi.Sensor):
         """Equidistant fisheye on the dome axis; same model as :class:`FisheyeCamera`."""

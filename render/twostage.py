@@ -24,20 +24,19 @@ with the origin at the top-left pixel centre, as in :mod:`optitact.camera`.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from optitact._validate import integer
+from optitact._validate import check_keys, integer
 from optitact.camera import FisheyeCamera
 from optitact.contact import Contacts
 from optitact.errors import InputError, RenderError
+from optitact.io import atomic_write_text, json_fingerprint
 from optitact.sensor import DomeSensor
 
 from .scene import RenderSettings, patch_polygons
@@ -66,6 +65,8 @@ NEAR_FIELD_DEG = 10.0
 PROBES_PER_RENDER = 13
 #: Version of the table format and of how it is measured (part of the cache key).
 TABLE_VERSION = 5
+#: Keys of a table's dict (:meth:`EmissionTable.to_dict`); all but the last are required.
+_TABLE_KEYS = ("version", "theta", "radius", "radiance", "stderr", "bands", "coupling", "local", "meta")
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,6 +171,7 @@ class EmissionTable:
         if not isinstance(d, dict) or d.get("version") != TABLE_VERSION:
             raise InputError(f"emission table must be a dict of version {TABLE_VERSION}, "
                              f"got version {d.get('version') if isinstance(d, dict) else type(d).__name__}")
+        check_keys(d, _TABLE_KEYS, "emission table", required=_TABLE_KEYS[:-1])
         theta, radius = np.asarray(d["theta"], float), np.asarray(d["radius"], float)
         rad, err = np.asarray(d["radiance"], float), np.asarray(d["stderr"], float)
         bands, coupling = np.asarray(d["bands"], float), np.asarray(d["coupling"], float)
@@ -360,10 +362,9 @@ def noload_radiance(sensor: DomeSensor, camera: FisheyeCamera, *, settings: Rend
 
 
 def _table_key(sensor, camera, settings, thetas, radii, spp, seed, variant) -> str:
-    key = json.dumps({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "settings": settings.to_dict(),
-                      "theta_deg": list(thetas), "radii": list(radii), "spp": spp, "seed": seed,
-                      "variant": variant, "version": TABLE_VERSION}, sort_keys=True)
-    return hashlib.sha256(key.encode()).hexdigest()[:24]
+    return json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
+                             "settings": settings.to_dict(), "theta_deg": list(thetas), "radii": list(radii),
+                             "spp": spp, "seed": seed, "variant": variant, "version": TABLE_VERSION}, 24)
 
 
 def _ring_points(sensor: DomeSensor, theta_deg, phi) -> np.ndarray:
@@ -597,8 +598,5 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera, *, settings: Rende
             "spp": spp, "seed": seed, "variant": used, "seconds": round(time.perf_counter() - start, 2)}
     table = EmissionTable(th, np.array(radii), rad, err, bands_rad, coupling, local, meta)
     if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(table.to_dict()))
-        os.replace(tmp, path)
+        atomic_write_text(path, json.dumps(table.to_dict()))
     return table

@@ -383,7 +383,7 @@ def test_bench_accuracy_json(small_set, tmp_path, capsys):
                         render_mode="pixels")
     plot = tmp_path / "errors.png"
     assert main(["bench", "accuracy", "--calibration-set", str(small_set.path), "--test-set",
-                 str(held_out.path), "--plot", str(plot), "--json"]) == 0
+                 str(held_out.path), "--plot", str(plot)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["test_set"]["samples"] == 4 * N and out["calibration_set"]["frames"] == 16
     keys = {"fx_rmse_n", "fy_rmse_n", "fz_rmse_n", "fx_rmse_pct_fs", "fy_rmse_pct_fs",

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from optitact.camera import FisheyeCamera, _radial_map, dome_from_pixel, pixel_from_dome
+from optitact.camera import FisheyeCamera, dome_from_pixel, pixel_from_dome, radial_map
 from optitact.errors import InputError, ShapeError
 from optitact.sensor import DomeSensor
 
@@ -27,7 +27,7 @@ def sensor():
 
 
 def _theta_max(sensor, camera):
-    return _radial_map(sensor, camera.z).theta_max
+    return camera.max_polar_angle(sensor)
 
 
 def _random_dome_points(sensor, theta_max, n, seed):
@@ -268,7 +268,7 @@ def test_refraction_bends_towards_normal(sensor, z, sign):
 # --------------------------------------------------------------------------- #
 @pytest.mark.parametrize("camera", CAMERAS, ids=lambda c: f"z{c.z}")
 def test_radial_map_monotone(sensor, camera):
-    rmap = _radial_map(sensor, camera.z)
+    rmap = radial_map(sensor, camera.z)
     alpha = np.linspace(0.0, rmap.alpha_max, 2001)
     theta, ok = rmap.theta(alpha)
     assert ok.all()
@@ -295,7 +295,7 @@ def test_dome_mask_matches_ray_angle(sensor):
     rows, cols = np.mgrid[0:cam.height, 0:cam.width]
     cy, cx = cam.center
     alpha = np.hypot(rows - cy, cols - cx) / cam.focal_px
-    np.testing.assert_array_equal(mask, alpha <= _radial_map(sensor, cam.z).alpha_max)
+    np.testing.assert_array_equal(mask, alpha <= radial_map(sensor, cam.z).alpha_max)
     assert mask[int(cy), int(cx)]
     assert not mask[0, 0] and not mask[-1, -1]
 
@@ -360,7 +360,7 @@ def test_camera_defaults_and_dict_round_trip():
 
 
 def test_camera_from_dict_unknown_key():
-    with pytest.raises(InputError, match=r"unknown camera parameters \['focal'\]"):
+    with pytest.raises(InputError, match=r"camera parameters: unknown parameter\(s\) \['focal'\]"):
         FisheyeCamera.from_dict({"focal": 3.0})
 
 
@@ -501,3 +501,9 @@ def test_keyword_only_arguments(sensor):
         pixel_from_dome([0.0, 0.0, 20.0], sensor, cam)  # type: ignore[misc]
     with pytest.raises(TypeError):
         dome_from_pixel(cam.center, sensor, cam)  # type: ignore[misc]
+
+
+def test_max_polar_angle_is_the_radial_maps_bound(sensor):
+    cam = FisheyeCamera()
+    assert cam.max_polar_angle(sensor) == radial_map(sensor, cam.z).theta_max
+    assert cam.max_polar_angle(sensor) <= math.pi / 2

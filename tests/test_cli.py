@@ -149,7 +149,7 @@ def test_bench_render_json(capsys, tmp_path):
     plot = tmp_path / "pareto.png"
     assert main(["bench", "render", "--spp", "1", "4", "--reference-spp", "8", "--width", "64",
                  "--height", "48", "--cases", "1-heavy", "41", "--modes", "brute", "pixels", "adaptive",
-                 "--targets", "0.3", "--plot", str(plot), "--json"]) == 0
+                 "--targets", "0.3", "--plot", str(plot)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["size"] == "64x48" and out["reference_spp"] == 8
     assert len(out["rows"]) == 2 * (2 * 2 + 1)  # cases x (2 modes x 2 spp + adaptive x 1 target)
@@ -169,3 +169,130 @@ def test_bench_render_json(capsys, tmp_path):
 def test_bench_render_bad_case(capsys):
     assert main(["bench", "render", "--cases", "7-medium", "--width", "48", "--height", "36"]) == 2
     assert "unknown case" in capsys.readouterr().err
+
+
+def test_a_bug_shows_its_traceback(monkeypatch, tmp_path):
+    """Only bad input is a one-line error with exit 2; a TypeError from a bug propagates."""
+    import optitact.cli.demo as demo
+
+    def buggy(args):
+        return len(None)  # TypeError: a programming error, not bad input
+
+    monkeypatch.setattr(demo, "run_render", buggy)
+    with pytest.raises(TypeError, match="NoneType"):
+        main(["render", "--forces", str(tmp_path / "f.csv"), "--out", str(tmp_path / "x.png")])
+
+
+@pytest.mark.parametrize("exc, code", [("input", 2), ("shape", 2), ("missing", 2), ("oserror", 2)])
+def test_bad_input_is_one_line_exit_2(monkeypatch, tmp_path, capsys, exc, code):
+    import optitact.cli.demo as demo
+    from optitact.errors import InputError, MissingExtraError, ShapeError
+
+    errors = {"input": InputError("forces must be finite"), "shape": ShapeError("expected 41 rows"),
+              "missing": MissingExtraError("mitsuba is needed for rendering: pip install 'optitact[render]'"),
+              "oserror": FileNotFoundError("forces file not found: f.csv")}
+
+    def bad(args):
+        raise errors[exc]
+
+    monkeypatch.setattr(demo, "run_render", bad)
+    assert main(["render", "--forces", "f.csv", "--out", str(tmp_path / "x.png")]) == code
+    err = capsys.readouterr().err
+    assert err.startswith("optitact: error: ") and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_no_json_flag_the_output_is_json(capsys):
+    """bench and experiment print one JSON object always: there is no --json switch that does nothing."""
+    for argv in (["bench", "pipeline", "--json"], ["bench", "render", "--json"]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+    assert "unrecognized arguments: --json" in capsys.readouterr().err
+
+
+@pytest.fixture
+def fake_study(monkeypatch, tmp_path):
+    """A tiny study registered under the name "fake" (the real ones are not needed here)."""
+    import types
+
+    from optitact.studies import Study, _protocol
+
+    def run(seed, *, full, progress):
+        return {"value": seed + (10 if full else 1), "series": np.arange(3)}
+
+    def draw(fig, result):
+        fig.subplots().plot(result["series"])
+
+    module = types.ModuleType("fake_study_for_tests")
+    module.STUDY = Study(name="fake", summary="a test study", run=run, draw=draw,
+                         published={"value": 42, "reference": "nobody (2024)"}, figsize=(3, 2))
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    monkeypatch.setattr(_protocol, "_REGISTRY", {**_protocol._REGISTRY, "fake": module.__name__})
+    monkeypatch.setenv("OPTITACT_CACHE_DIR", str(tmp_path / "cache"))
+    return module
+
+
+def test_experiment_runs_a_registered_study(fake_study, capsys, tmp_path):
+    assert main(["experiment", "fake", "--seed", "3"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["value"] == 4 and out["size"] == "quick" and out["seed"] == 3
+    assert out["published"]["value"] == 42
+    plot = tmp_path / "fake.png"
+    assert main(["experiment", "fake", "--full", "--plot", str(plot)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["value"] == 10 and out["size"] == "full" and out["plot"] == str(plot)
+    assert cv2.imread(str(plot)) is not None
+
+
+def test_experiment_names_come_from_the_registry(fake_study, capsys):
+    with pytest.raises(SystemExit):
+        main(["experiment", "--help"])
+    assert "fake" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        main(["experiment", "nonesuch"])
+    assert e.value.code == 2
+
+
+def test_bench_stability_calls_the_noise_sweep_study(monkeypatch, capsys):
+    import types
+
+    calls = {}
+
+    def bench_stability(*, cases, seed, progress):
+        calls.update(cases=cases, seed=seed, progress=progress)
+        return {"cases": cases, "failures": 0}
+
+    module = types.ModuleType("optitact.studies.noise_sweep")
+    module.bench_stability = bench_stability
+    monkeypatch.setitem(sys.modules, "optitact.studies.noise_sweep", module)
+    import optitact.studies
+
+    monkeypatch.setattr(optitact.studies, "noise_sweep", module, raising=False)
+    assert main(["bench", "stability", "--cases", "12", "--seed", "5"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"cases": 12, "failures": 0}
+    assert calls == {"cases": 12, "seed": 5, "progress": True}
+
+
+def test_core_works_without_the_extras(tmp_path):
+    """import optitact, the pipeline, JSON calibrations, forces, batch and the CLI need none of the extras;
+    a plot without matplotlib is a one-line error naming the extra."""
+    code = (
+        "import sys\n"
+        "for m in ('matplotlib', 'zarr', 'dask', 'distributed', 'mitsuba', 'drjit', 'sklearn',\n"
+        "          'dtaidistance'):\n"
+        "    sys.modules[m] = None\n"
+        "import numpy as np, optitact, optitact.pipeline, optitact.calib, optitact.forces, optitact.batch\n"
+        "import optitact.cli, optitact.render\n"
+        "cal = optitact.calib.default_calibration()\n"
+        "r = cal.pipeline().process(np.zeros(cal.camera.shape, np.uint8))\n"
+        "field = cal.apply(r)\n"
+        "assert field.local.shape == (41, 3)\n"
+        "try:\n"
+        "    field.save_plot('x.png', np.zeros(cal.camera.shape), cal.camera)\n"
+        "except optitact.errors.MissingExtraError as e:\n"
+        "    assert \"pip install 'optitact[plot]'\" in str(e), e\n"
+        "else:\n"
+        "    raise SystemExit('plotted without matplotlib')\n"
+        "assert optitact.cli.main(['render', '--forces', 'none.csv', '--out', 'x.png']) == 2\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)

@@ -8,6 +8,10 @@ import math
 import numpy as np
 import pytest
 
+import optitact
+import optitact.calib
+import optitact.forces
+import optitact.pipeline
 from optitact.contact import TIP_MARGIN, Contacts, cone_loads, contact_patches
 from optitact.errors import InputError, ShapeError
 from optitact.sensor import DomeSensor
@@ -463,3 +467,32 @@ def test_wrong_dtype(sensor, func, value, dtype_name):
     with pytest.raises(TypeError, match=rf"forces must be a real numeric array, got dtype "
                                         rf"{dtype_name}"):
         func(sensor, value)
+
+
+# A sensor or camera of the wrong kind is a TypeError naming the argument (it was an AttributeError).
+_S, _CAM = optitact.DomeSensor.default(), optitact.FisheyeCamera(width=80, height=60)
+_Z = np.zeros((41, 3))
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: optitact.contact_patches("dome", _Z), "sensor"),
+    (lambda: optitact.cone_loads("dome", _Z), "sensor"),
+    (lambda: __import__("optitact.loads").loads.indenter_load("dome"), "sensor"),
+    (lambda: __import__("optitact.loads").loads.random_load("dome"), "sensor"),
+    (lambda: optitact.forces.global_from_local("dome", _Z), "sensor"),
+    (lambda: optitact.forces.local_from_global("dome", _Z), "sensor"),
+    (lambda: optitact.pixel_from_dome(_S.element_positions[:2], sensor="dome", camera=_CAM), "sensor"),
+    (lambda: optitact.pixel_from_dome(_S.element_positions[:2], sensor=_S, camera="cam"), "camera"),
+    (lambda: optitact.dome_from_pixel([[30.0, 40.0]], sensor="dome", camera=_CAM), "sensor"),
+    (lambda: optitact.dome_from_pixel([[30.0, 40.0]], sensor=_S, camera="cam"), "camera"),
+    (lambda: _CAM.max_polar_angle("dome"), "sensor"),
+    (lambda: _CAM.dome_mask("dome"), "sensor"),
+    (lambda: optitact.pipeline.split_regions("dome", _CAM), "sensor"),
+    (lambda: optitact.pipeline.split_regions(_S, "cam"), "camera"),
+    (lambda: optitact.pipeline.check_frames(np.zeros((60, 80)), "cam"), "camera"),
+    (lambda: optitact.Pipeline("dome", _CAM), "sensor"),
+    (lambda: optitact.calib.fingerprint("dome", _CAM, {}), "sensor"),
+])
+def test_wrong_sensor_or_camera_kind_is_a_type_error_naming_it(call, name):
+    with pytest.raises(TypeError, match=rf"^{name} must be a \w+, got str"):
+        call()

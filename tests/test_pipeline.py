@@ -825,6 +825,35 @@ def test_stream_errors(small):
     assert list(small.stream([], baseline_frames=2)) == []
 
 
+def test_take_baseline_splits_the_first_frames():
+    from optitact.pipeline import take_baseline
+
+    items = [(f"f{k}", np.full((2, 3), k, np.uint8)) for k in range(5)]
+    base, head, rest = take_baseline(items, 2, frame=lambda item: item[1])
+    assert base.shape == (2, 2, 3) and [n for n, _ in head] == ["f0", "f1"]
+    assert [n for n, _ in rest] == ["f2", "f3", "f4"]
+    base, head, rest = take_baseline(iter(range(3)), 0)
+    assert base is None and head == [] and list(rest) == [0, 1, 2]
+    with pytest.raises(InputError, match="stream ended after 1 frames, before the 3 baseline frames"):
+        take_baseline(items[:1], 3, frame=lambda item: item[1])
+
+
+def test_region_weights_seam(small):
+    """The public seam the renderer uses: the pixels each element's region reads."""
+    from optitact.regions import region_weights
+
+    w = small.region_weights
+    assert w is region_weights(small.grids, SMALL.shape)  # cached per geometry
+    pixel, label = w.region_pixels([0, 5])
+    assert set(np.unique(label)) == {0, 5}
+    np.testing.assert_array_equal(pixel, w.pixel[np.isin(w.label, [0, 5])])
+    mask = np.zeros(small.grids.n_elements, bool)
+    mask[[0, 5]] = True
+    np.testing.assert_array_equal(w.region_pixels(mask)[0], pixel)
+    assert w.region_pixels()[0] is w.pixel
+    assert np.array_equal(np.bincount(w.label, minlength=len(w.n_pixels)), w.n_pixels)
+
+
 # ---------------------------------------------------------------------------- 8. errors
 H, W = SMALL.shape
 

@@ -175,7 +175,7 @@ def test_process_help(capsys):
 
 def test_bench_pipeline_json(capsys):
     assert main(["bench", "pipeline", "--size", "80x60", "--frames", "2", "--repeats", "1",
-                 "--spp", "2", "--json"]) == 0
+                 "--spp", "2"]) == 0
     out = json.loads(capsys.readouterr().out)
     row = out["80x60"]
     assert out["cores"] >= 1
@@ -188,3 +188,49 @@ def test_bench_pipeline_json(capsys):
 def test_bench_pipeline_bad_size(capsys):
     assert main(["bench", "pipeline", "--size", "640by480"]) == 2
     assert "--size must look like 640x480" in capsys.readouterr().err
+
+
+def test_process_files_from_python_equals_the_command(tmp_path, frames, capsys):
+    """optitact.batch.process_files: the engine behind optitact process, callable from Python."""
+    from optitact.batch import process_files
+
+    np.save(tmp_path / "a.npy", frames)
+    cv2.imwrite(str(tmp_path / "b.png"), frames[2])
+    sources = [tmp_path / "a.npy", tmp_path / "b.png"]
+    pipe = optitact.Pipeline(SENSOR, CAM)
+    got = process_files(sources, pipeline=pipe, batch=2)
+    want = optitact.Pipeline(SENSOR, CAM, baseline=frames[0]).process(np.concatenate([frames, frames[2:]]))
+    assert got.n_frames == 4 and got.readings.G.shape == (4, 41)
+    assert got.sources[-1].endswith("b.png") and got.forces is None
+    np.testing.assert_allclose(got.readings.G, want.G, rtol=1e-8, atol=0)
+    np.testing.assert_array_equal(got.last_frame, frames[2])
+    np.testing.assert_array_equal(got.last_readings.G, got.readings.G[-1])
+    # written to a CSV: the same table as the command's, whatever the batch size
+    out = tmp_path / "py.csv"
+    assert process_files(sources, pipeline=pipe, out=out, batch=3).readings is None
+    assert main(["process", *map(str, sources), "--out", str(tmp_path / "cli.csv"), "--fov", "140"]) == 0
+    assert out.read_text() == (tmp_path / "cli.csv").read_text()
+    # a given baseline replaces the first-frames one; baseline_frames=0 subtracts nothing
+    given = process_files(sources, pipeline=pipe, baseline=frames[1])
+    np.testing.assert_allclose(given.readings.G[2], pipe.with_baseline(frames[1]).process(frames[2]).G,
+                               rtol=1e-12, atol=0)
+    raw = process_files(sources, pipeline=pipe, baseline_frames=0)
+    np.testing.assert_array_equal(raw.readings.G, pipe.process(np.concatenate([frames, frames[2:]])).G)
+
+
+def test_process_files_errors_leave_no_file(tmp_path, frames):
+    from optitact.batch import process_files
+
+    np.save(tmp_path / "a.npy", frames[:2])
+    pipe = optitact.Pipeline(SENSOR, CAM)
+    out = tmp_path / "r.csv"
+    with pytest.raises(ValueError, match="stream ended after 2 frames, before the 3 baseline frames"):
+        process_files([tmp_path / "a.npy"], pipeline=pipe, baseline_frames=3, out=out)
+    cv2.imwrite(str(tmp_path / "small.png"), np.zeros((20, 30), np.uint8))
+    with pytest.raises(ValueError, match="small.png: expected a 120x160 frame"):
+        process_files([tmp_path / "a.npy", tmp_path / "small.png"], pipeline=pipe, out=out)
+    assert not out.exists() and not list(tmp_path.glob(".*tmp*"))
+    with pytest.raises(TypeError, match="needs a pipeline or a calibration"):
+        process_files([tmp_path / "a.npy"])
+    with pytest.raises(TypeError, match="pipeline must be a Pipeline, got str"):
+        process_files([tmp_path / "a.npy"], pipeline="fast")

@@ -223,9 +223,9 @@ def test_spot_pixels_are_the_loaded_regions():
     from optitact.render import spot_pixels
 
     mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
-    fold = Pipeline(SENSOR, PIX_CAM)._fold
+    weights = Pipeline(SENSOR, PIX_CAM).region_weights
     want = np.zeros(PIX_CAM.shape, bool).reshape(-1)
-    want[fold.pixel[np.isin(fold.label, [0, 5, 20])]] = True
+    want[weights.pixel[np.isin(weights.label, [0, 5, 20])]] = True
     np.testing.assert_array_equal(mask.reshape(-1), want)
     assert mask.sum() < 0.1 * mask.size
     assert spot_pixels(SENSOR, PIX_CAM, PIX_LOAD, margin=2).sum() > mask.sum()
@@ -275,3 +275,17 @@ def test_pixel_rendering_inputs(noload_bg):
     ]:
         with pytest.raises(exc, match=match):
             render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=1, **kw)
+
+
+def test_full_output_returns_what_the_render_measured():
+    """render() returns the radiance; full_output=True a RenderResult with the samples used (no dict filled)."""
+    from optitact.render import RenderResult
+
+    cam = optitact.FisheyeCamera(width=32, height=24)
+    bg = np.full(cam.shape, 0.25, np.float32)
+    none = np.zeros(cam.shape, bool)
+    out = render(SENSOR, np.zeros((41, 3)), camera=cam, pixels=none, background=bg, full_output=True)
+    assert isinstance(out, RenderResult) and out.spp == 0
+    np.testing.assert_array_equal(out.radiance, bg)
+    plain = render(SENSOR, np.zeros((41, 3)), camera=cam, pixels=none, background=bg)
+    assert isinstance(plain, np.ndarray)

@@ -427,7 +427,7 @@ def test_from_dict_unknown_keys():
     d = DomeSensor().to_dict()
     d["colour"] = "red"
     d["aperture"] = 2
-    with pytest.raises(InputError, match=r"unknown sensor parameters \['aperture', 'colour'\]"):
+    with pytest.raises(InputError, match=r"sensor parameters: unknown parameter\(s\) \['aperture', 'colour'\]"):
         DomeSensor.from_dict(d)
     with pytest.raises(ValueError, match=r"valid: \[.*'outer_radius'"):
         DomeSensor.from_dict({"radius": 20})

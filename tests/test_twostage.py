@@ -199,20 +199,19 @@ def test_adaptive_sampling_reaches_its_target():
     bg = noload_radiance(SENSOR, CAM)
     mask = spot_pixels(SENSOR, CAM, LOAD)
     ref = render(SENSOR, LOAD, camera=CAM, spp=4096, seed=1, pixels=mask, background=bg)
-    from optitact.pipeline import _fold, split_regions
+    from optitact.regions import region_weights, split_regions
 
-    fold = _fold(split_regions(SENSOR, CAM), CAM.shape)
+    weights = region_weights(split_regions(SENSOR, CAM), CAM.shape)
 
     def sums(img):
         d = (img - bg).reshape(-1)
-        return np.array([d[fold.pixel[fold.label == e]].sum() for e in LOADED])
+        return np.array([d[weights.region_pixels([e])[0]].sum() for e in LOADED])
 
     used = {}
     for target in (0.05, 0.01):
-        st = {}
-        img = render(SENSOR, LOAD, camera=CAM, spp=16, seed=2, pixels=mask, background=bg,
-                     target_error=target, max_spp=4096, stats=st)
-        used[target] = st["spp"]
+        out = render(SENSOR, LOAD, camera=CAM, spp=16, seed=2, pixels=mask, background=bg,
+                     target_error=target, max_spp=4096, full_output=True)
+        img, used[target] = out.radiance, out.spp
         np.testing.assert_allclose(sums(img), sums(ref), rtol=3 * target + 0.01)
     assert used[0.05] < used[0.01] <= 4096
     assert used[0.05] >= 64  # at least 4 passes to estimate the spread

@@ -1,0 +1,237 @@
+"""Batch processing: frame files (images, folders, ``.npy`` stacks, videos) to a readings table.
+
+:func:`process_files` reads every frame of the sources in order, turns them
+into readings with a :class:`~optitact.Pipeline` (and into forces with a
+calibration), and returns the table or writes it as CSV
+(:class:`~optitact.io.ReadingsWriter`). ``optitact process`` is this function
+behind a command line; it runs here, or on a Dask cluster with one task per
+file (the same table either way).
+
+Examples
+--------
+>>> import numpy as np, optitact
+>>> from optitact.batch import process_files
+>>> cam = optitact.FisheyeCamera(width=80, height=60)
+>>> pipe = optitact.Pipeline(optitact.DomeSensor.default(), cam)
+>>> import tempfile, pathlib
+>>> folder = pathlib.Path(tempfile.mkdtemp())
+>>> np.save(folder / "rec.npy", np.zeros((3, 60, 80), np.uint8))
+>>> table = process_files([folder / "rec.npy"], pipeline=pipe)
+>>> table.n_frames, table.readings.G.shape
+(3, (3, 41))
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import integer
+from .errors import InputError
+from .frames import count_frames, expand_sources, iter_frames
+from .io import ReadingsWriter
+from .pipeline import Pipeline, take_baseline
+from .readings import Readings
+
+__all__ = ["ProcessedFrames", "process_files"]
+
+
+@dataclass(frozen=True, eq=False)
+class ProcessedFrames:
+    """What :func:`process_files` returns.
+
+    Attributes
+    ----------
+    n_frames : int
+        Frames processed.
+    sources : list of str
+        The source of each frame (file, or ``file[k]`` for a frame of a stack
+        or video), as in the CSV's ``source`` column.
+    readings : Readings or None
+        ``(n_frames, E)`` readings; None when the table was written to ``out``.
+    forces : (n_frames, E, 3) ndarray or None
+        Element-local forces (N) with a calibration, when not written to ``out``.
+    clamped : (n_frames, E) bool ndarray or None
+        Readings the calibration clamped to its fitted range (likewise).
+    last_frame : (H, W) ndarray
+        The last frame (e.g. to plot its force field).
+    last_readings : Readings
+        Its readings ``(E,)``.
+    seconds : float
+        Wall time, reading the files included.
+    """
+
+    n_frames: int
+    sources: list
+    readings: Readings | None
+    forces: np.ndarray | None
+    clamped: np.ndarray | None
+    last_frame: np.ndarray
+    last_readings: Readings
+    seconds: float
+
+
+class _Table:
+    """The in-memory counterpart of :class:`~optitact.io.ReadingsWriter` (same ``write``)."""
+
+    def __init__(self, *, forces: bool) -> None:
+        self.with_forces, self.frames = forces, 0
+        self.parts: list = []
+
+    def write(self, readings, sources, forces=None, clamped=None) -> None:
+        self.parts.append((readings, forces, clamped))
+        self.frames += len(sources)
+
+    def __enter__(self) -> _Table:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+    def result(self):
+        r = Readings.stack([p[0] for p in self.parts])
+        if not self.with_forces:
+            return r, None, None
+        return r, np.concatenate([p[1] for p in self.parts]), np.concatenate([p[2] for p in self.parts])
+
+
+def _check_shape(name: str, frame: np.ndarray, shape: tuple[int, int]) -> None:
+    if frame.shape != shape:
+        raise InputError(f"{name}: expected a {shape[0]}x{shape[1]} frame for this camera, got {frame.shape}")
+
+
+def _batches(pairs: Iterable, shape: tuple[int, int], batch: int):
+    """``(names, stack)`` of up to ``batch`` frames at a time from ``(name, frame)`` pairs."""
+    held: list = []
+    for name, frame in pairs:
+        _check_shape(name, frame, shape)
+        held.append((name, frame))
+        if len(held) >= batch:
+            yield [n for n, _ in held], np.stack([f for _, f in held])
+            held = []
+    if held:
+        yield [n for n, _ in held], np.stack([f for _, f in held])
+
+
+def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray) -> tuple:
+    """``(names, readings, forces, clamped, last frame)`` of one batch (forces None without ``cal``)."""
+    r = pipe.process(stack)
+    forces, clamped = cal.forces(r) if cal is not None else (None, None)
+    return names, r, forces, clamped, stack[-1]
+
+
+def _read_file(pipe: Pipeline, cal, path, batch: int) -> list:
+    """Every batch of one file: a task of :func:`process_files` on a cluster."""
+    return [_read(pipe, cal, names, stack)
+            for names, stack in _batches(iter_frames([path]), pipe.camera.shape, batch)]
+
+
+def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | None = None,
+                  calibration=None, baseline=None, baseline_frames: int = 1,
+                  out: str | os.PathLike | None = None, batch: int = 32, scheduler=None,
+                  progress: bool = False) -> ProcessedFrames:
+    """Readings (and forces) of every frame in image files, folders, ``.npy`` stacks or videos.
+
+    Parameters
+    ----------
+    sources : sequence of path-like
+        Files and folders (a folder is its sorted frame files), read in order;
+        see :func:`optitact.frames.expand_sources`.
+    pipeline : Pipeline, optional
+        Turns frames into readings; default ``calibration.pipeline()``.
+    calibration : Calibration, optional
+        Also estimate element-local forces (``fx, fy, fz, clamped`` columns).
+    baseline : (H, W) or (T, H, W) array_like, optional
+        No-load frame(s) to use as the pipeline's baseline.
+    baseline_frames : int
+        When neither ``baseline`` nor the pipeline holds a baseline, the mean
+        of the first ``baseline_frames`` frames becomes it (default 1: the
+        recording starts unloaded; 0 subtracts nothing). Those frames are
+        processed too.
+    out : path-like, optional
+        Write the table as CSV here (atomically; see
+        :class:`~optitact.io.ReadingsWriter`) instead of keeping it in memory.
+    batch : int
+        Frames processed together (default 32); the results do not depend on it.
+    scheduler : str or distributed.Client, optional
+        Process on a Dask cluster, one task per file (needs the ``dask``
+        extra); the table is the same as a local run's.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    ProcessedFrames
+
+    Raises
+    ------
+    FileNotFoundError, InputError, ShapeError
+        A missing or unreadable source, no frames, a frame of the wrong size,
+        fewer frames than ``baseline_frames``.
+    TypeError
+        Neither a pipeline nor a calibration, or objects of the wrong kind.
+    """
+    from tqdm import tqdm
+
+    if pipeline is None and calibration is None:
+        raise TypeError("process_files needs a pipeline or a calibration")
+    pipe = calibration.pipeline() if pipeline is None else pipeline
+    if not isinstance(pipe, Pipeline):
+        raise TypeError(f"pipeline must be a Pipeline, got {type(pipe).__name__}")
+    batch = integer(batch, "batch", minimum=1)
+    n_base = integer(baseline_frames, "baseline_frames", minimum=0)
+    files = expand_sources(sources)
+    t0 = time.perf_counter()
+    if baseline is not None:
+        pipe, n_base = pipe.with_baseline(baseline), 0
+    elif pipe.baseline is not None:
+        n_base = 0
+    pairs = iter_frames(files)
+    base, head, pairs = take_baseline(pairs, n_base, frame=lambda item: item[1])
+    if base is not None:
+        for name, frame in head:
+            _check_shape(name, frame, pipe.camera.shape)
+        pipe = pipe.with_baseline(base)
+    sink = ReadingsWriter(out, forces=calibration is not None) if out is not None \
+        else _Table(forces=calibration is not None)
+    names: list[str] = []
+    last = None
+    with sink, tqdm(total=count_frames(files), unit="frame", desc="process", file=sys.stderr,
+                    disable=not progress) as bar:
+        for part in _results(pipe, calibration, files, head, pairs, batch, scheduler):
+            part_names, r, forces, clamped, _ = part
+            if calibration is None:
+                sink.write(r, part_names)
+            else:
+                sink.write(r, part_names, forces, clamped)
+            names += part_names
+            last = part
+            bar.update(len(part_names))
+        if last is None:
+            raise InputError("the frames hold no frame")
+    readings, forces, clamped = sink.result() if out is None else (None, None, None)
+    return ProcessedFrames(len(names), names, readings, forces, clamped, last[4], last[1][-1],
+                           time.perf_counter() - t0)
+
+
+def _results(pipe, cal, files, head, rest, batch, scheduler):
+    """Batches ``(names, readings, forces, clamped)`` in frame order, here or on a cluster."""
+    if scheduler is None:
+        if head:
+            yield _read(pipe, cal, [n for n, _ in head], np.stack([f for _, f in head]))
+        for names, stack in _batches(rest, pipe.camera.shape, batch):
+            yield _read(pipe, cal, names, stack)
+        return
+    from ._cluster import dask_client
+
+    with dask_client(scheduler, purpose="batch processing on a cluster") as client:
+        [p] = client.scatter([pipe], broadcast=True, hash=False)
+        futures = [client.submit(_read_file, p, cal, f, batch, retries=3, pure=False) for f in files]
+        for fut in futures:  # in file order: the table is the same as a local run's
+            yield from fut.result()
+

@@ -1,0 +1,55 @@
+"""Command-line interface: ``optitact demo``, ``render``, ``process``, ``calibrate``, ``bench``, ``experiment``.
+
+Messages and progress bars go to stderr; commands that print results print
+one JSON object on stdout (``bench``, ``experiment``), the others the path
+they wrote. Bad input (optitact's own :class:`~optitact.errors.InputError`
+and :class:`~optitact.errors.ShapeError`, a missing extra, an unreadable or
+unwritable file) is a one-line ``optitact: error: ...`` and exit code 2; any
+other exception is a bug and shows its traceback.
+
+One module per command group: :mod:`~optitact.cli.demo` (demo, render,
+overlay), :mod:`~optitact.cli.process`, :mod:`~optitact.cli.calibrate`,
+:mod:`~optitact.cli.bench`, :mod:`~optitact.cli.experiment`; shared options
+are argparse parent parsers (:mod:`~optitact.cli._args`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from optitact import __version__
+from optitact.errors import OptitactError
+
+from . import bench, calibrate, demo, experiment, process
+from .demo import overlay
+
+__all__ = ["main", "overlay", "parser", "USER_ERRORS"]
+
+#: Exceptions that mean bad input rather than a bug: a one-line message and exit code 2.
+#: OptitactError covers InputError, ShapeError, MissingExtraError and RenderError (Mitsuba set-up).
+USER_ERRORS = (OptitactError, OSError, json.JSONDecodeError)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The ``optitact`` argument parser."""
+    p = argparse.ArgumentParser(
+        prog="optitact",
+        description="Optical three-axis tactile sensing: render synthetic frames of the dome "
+                    "sensor, process frames into forces.")
+    p.add_argument("--version", action="version", version=f"optitact {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in (demo, process, calibrate, bench, experiment):
+        module.add_parsers(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``optitact`` command; returns the exit code."""
+    args = parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except USER_ERRORS as exc:
+        print(f"optitact: error: {exc}", file=sys.stderr)
+        return 2

@@ -1,0 +1,156 @@
+"""``optitact bench render|pipeline|accuracy|stability``: one JSON object on stdout.
+
+The benchmarks themselves live in the studies layer (:mod:`optitact.studies`),
+imported when a bench runs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ._args import image_size_parent, plot_parent, positive_int, seed_parent, size, variant_parent
+
+__all__ = ["add_parsers"]
+
+
+def add_parsers(sub) -> None:
+    """Add ``bench`` (render, pipeline, accuracy, stability) to the subcommands."""
+    bench = sub.add_parser(
+        "bench", help="benchmarks (time side by side with error)",
+        description="Benchmarks that report run time together with the error it buys; "
+                    "medians over repeats in one run. Output: one JSON object on stdout.")
+    bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    brender = bsub.add_parser(
+        "render", parents=[image_size_parent(), variant_parent(),
+                           plot_parent("save error against time (log-log) per mode")],
+        help="render time against the error it leaves, per mode and setting",
+        description="For fixed load cases (1, 5 and 41 loaded elements, light and heavy), render "
+                    "with each mode (brute: path-traced full frames; pixels: path-traced, only the "
+                    "pixels the pipeline reads for the loaded elements, over the cached no-load "
+                    "frame; adaptive: pixels with passes until each element reaches a target "
+                    "relative standard error; two_stage: guided light to the patches from a cached "
+                    "table, patches traced in closed form as emitters) at several settings, and "
+                    "compare the readings with a converged reference (cached on disk after the "
+                    "first run): G relative error, u error (mm) and the force error through the "
+                    "shipped calibration (%% FS). Prints the rows, the Pareto front per case, the "
+                    "one-time costs, and the speed-up at equal error and the seconds of a "
+                    "41-element frame at the target error. The first run measures the two-stage "
+                    "table and the references (minutes); later runs reuse them.")
+    brender.add_argument("--spp", type=positive_int, nargs="+", default=[16, 64, 256],
+                         help="samples per pixel for brute and pixels (default 16 64 256)")
+    brender.add_argument("--targets", type=float, nargs="+", default=[0.02, 0.01, 0.005],
+                         help="target relative errors for adaptive (default 0.02 0.01 0.005)")
+    brender.add_argument("--n-sub", type=positive_int, nargs="+", default=[4, 8],
+                         help="sub-pixel rays per side for two_stage (default 4 8)")
+    brender.add_argument("--modes", nargs="+", choices=("brute", "pixels", "adaptive", "two_stage"),
+                         default=["brute", "pixels", "adaptive", "two_stage"],
+                         help="render modes (default all four)")
+    brender.add_argument("--reference-spp", type=positive_int, default=4096,
+                         help="samples per pixel of the converged references (default 4096)")
+    brender.add_argument("--cases", nargs="+", default=None,
+                         help="load cases (default all: 1-light 1-heavy 5-light 5-heavy 41)")
+    brender.add_argument("--repeats", type=positive_int, default=1,
+                         help="renders per row; medians and RMS over them (default 1)")
+    brender.add_argument("--target", type=float, default=0.5,
+                         help="force error (%% FS) for the headline figures (default 0.5)")
+    bpipe = bsub.add_parser(
+        "pipeline", parents=[seed_parent(), variant_parent()],
+        help="frames/s of the fast and reference pipelines vs one pass over the frame",
+        description="Render (once, then cached in the user cache folder) a frame with all 41 "
+                    "elements loaded at each size, expose it with several noise seeds, and time "
+                    "the fast pipeline frame by frame and as a batch, the reference pipeline, and "
+                    "one pass over the frame (np.count_nonzero(frame > t)), side by side in each "
+                    "repeat; report medians and the fast-vs-reference differences.")
+    bpipe.add_argument("--size", nargs="+", default=["640x480", "480x480"], metavar="WxH",
+                       help="frame sizes (default 640x480 480x480)")
+    bpipe.add_argument("--frames", type=positive_int, default=16,
+                       help="distinct noisy frames per size (default 16)")
+    bpipe.add_argument("--repeats", type=positive_int, default=5,
+                       help="timing repeats; medians are reported (default 5)")
+    bpipe.add_argument("--spp", type=positive_int, default=64,
+                       help="samples per pixel of the renders (default 64)")
+    bacc = bsub.add_parser(
+        "accuracy", parents=[seed_parent("seed of the calibration set; the held-out set uses seed + 1000"),
+                             variant_parent(),
+                             plot_parent("save estimated vs true forces of both models as PNG")],
+        help="force errors of both models on a held-out synthetic set",
+        description="Fit both models on a calibration set and report force errors on a held-out "
+                    "set (disjoint seeds, independent forces) at the nominal CCD noise. Sets "
+                    "are generated once and cached in the user cache folder, or given.")
+    bacc.add_argument("--frames", type=positive_int, default=100,
+                      help="calibration frames (default 100)")
+    bacc.add_argument("--test-frames", type=positive_int, default=30,
+                      help="held-out frames (default 30)")
+    bacc.add_argument("--spp", type=positive_int, default=64,
+                      help="samples per pixel of the calibration set (default 64)")
+    bacc.add_argument("--test-spp", type=positive_int, default=None,
+                      help="samples per pixel of the held-out set (default: --spp); Monte Carlo "
+                           "noise is the simulation's, not the sensor's")
+    bacc.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
+    bacc.add_argument("--render-mode", choices=("two_stage", "pixels", "full"), default="two_stage",
+                      help="how the calibration frames are rendered (default two_stage)")
+    bacc.add_argument("--test-render-mode", choices=("two_stage", "pixels", "full"), default="pixels",
+                      help="how the held-out frames are rendered (default pixels: path-traced)")
+    bacc.add_argument("--calibration-set", type=Path, default=None, metavar="SET.zarr",
+                      help="use this calibration set instead of generating one")
+    bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
+                      help="use this held-out set instead of generating one")
+    bstab = bsub.add_parser(
+        "stability", parents=[seed_parent()],
+        help="stress cases of every stage and the noise sweep against the Cramer-Rao bound",
+        description="Run the generated stress cases (frames, readings at the edge, calibration files "
+                    "and fits, accumulation, renderer inputs) and the Monte Carlo noise sweep of G "
+                    "and u against the Cramer-Rao bound. Output: one JSON object with cases, "
+                    "failures, noise_sweep and nominal.")
+    bstab.add_argument("--cases", type=positive_int, default=10000,
+                       help="generated stress cases (default 10000)")
+
+    for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab)):
+        p.set_defaults(run=BENCHES[name])
+
+
+def _render(args) -> dict:
+    from optitact.studies.bench_render import bench_render
+
+    return bench_render(tuple(args.spp), modes=tuple(args.modes), targets=tuple(args.targets),
+                        n_subs=tuple(args.n_sub), reference_spp=args.reference_spp, width=args.width,
+                        height=args.height, repeats=args.repeats, cases=args.cases,
+                        target_pct_fs=args.target, variant=args.variant, plot=args.plot)
+
+
+def _pipeline(args) -> dict:
+    from optitact.studies.bench_pipeline import bench_pipeline
+
+    return bench_pipeline([size(s) for s in args.size], n_frames=args.frames, repeats=args.repeats,
+                          spp=args.spp, seed=args.seed, variant=args.variant)
+
+
+def _accuracy(args) -> dict:
+    from optitact.studies.bench_accuracy import bench_accuracy
+
+    return bench_accuracy(frames=args.frames, test_frames=args.test_frames, spp=args.spp,
+                          test_spp=args.test_spp, size=size(args.size),
+                          calibration_set=args.calibration_set, test_set=args.test_set, seed=args.seed,
+                          variant=args.variant, plot=args.plot, render_mode=args.render_mode,
+                          test_render_mode=args.test_render_mode)
+
+
+def _stability(args) -> dict:
+    from optitact.studies.noise_sweep import bench_stability
+
+    return bench_stability(cases=args.cases, seed=args.seed, progress=True)
+
+
+def _printing(bench):
+    def run(args) -> int:
+        print(json.dumps(bench(args)))
+        return 0
+
+    run.__doc__ = f"Print the JSON result of {bench.__name__[1:]} (``optitact bench``)."
+    return run
+
+
+#: ``optitact bench NAME`` -> the command.
+BENCHES = {"render": _printing(_render), "pipeline": _printing(_pipeline), "accuracy": _printing(_accuracy),
+           "stability": _printing(_stability)}

@@ -1,0 +1,272 @@
+"""The per-frame image steps of the pipeline and the checks of its inputs.
+
+:func:`check_frames` validates a frame or stack for a camera;
+:func:`subtract_baseline`, :func:`denoise` and :func:`apply_threshold` are
+steps 1-3 of :mod:`optitact.pipeline`; :func:`readings_from_moments` turns a
+region's sums into :class:`~optitact.readings.Readings`;
+:func:`estimate_noise` measures a camera's temporal noise from a no-load
+stack. :class:`optitact.Pipeline` runs them (its ``"reference"`` method in
+turn, its ``"fast"`` method folded into per-pixel weights).
+
+Convention
+----------
+Images are ``(row, col)`` with the origin at the top-left pixel centre; grey
+levels are the frame's own units (DN for camera frames).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._validate import check_type
+from .camera import FisheyeCamera
+from .errors import InputError, ShapeError
+from .readings import Readings
+
+__all__ = ["FILTERS", "G_MIN", "MAX_GREY", "apply_threshold", "check_frames", "denoise", "estimate_noise",
+           "filter_radius", "readings_from_moments", "subtract_baseline"]
+
+FILTERS = ("none", "gaussian", "median")
+#: moments) and the squares in the noise estimates then stay far inside float64's range.
+MAX_GREY = 1e100
+#: Smallest G (grey level x mm^2) that can read as contact: below it the sums are made of
+#: subnormal numbers, whose rounding would make the centroid meaningless.
+G_MIN = 1e-250
+
+
+# ---------------------------------------------------------------------------- input checks
+def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[np.ndarray, bool]:
+    """Validate a frame ``(H, W)`` or stack ``(T, H, W)`` for a camera.
+
+    Returns
+    -------
+    stack : (T, H, W) ndarray
+        The input as a stack (a view where possible; never modified).
+        float16 frames come back as float32 and extended-precision floats
+        as float64 (both exact for the accepted range).
+    single : bool
+        True when a single 2-D frame came in.
+
+    Raises
+    ------
+    TypeError
+        For a non-numeric, bool, complex or object dtype, or nested
+        sequences that do not form an array.
+    ShapeError
+        If the array is not 2-D or 3-D or its image size is not the camera's
+        ``(height, width)``.
+    InputError
+        For an empty stack, a NaN or infinite pixel, a float pixel beyond
+        ``MAX_GREY`` in magnitude, or a negative value in an integer frame.
+    """
+    check_type(camera, FisheyeCamera, "camera")
+    try:
+        arr = np.asarray(frames)
+    except (ValueError, TypeError) as exc:  # ragged nested sequences
+        raise TypeError(f"{name} must be an array of grey levels (H, W) or (T, H, W); "
+                        f"could not make one ({exc})") from None
+    if arr.dtype.kind not in "uif":
+        raise TypeError(f"{name} must have an unsigned/signed integer or float dtype "
+                        f"(uint8, uint16, float32, float64), got {arr.dtype}")
+    if arr.ndim not in (2, 3):
+        raise ShapeError(f"{name} must be a frame (H, W) or a stack (T, H, W), got shape {arr.shape}")
+    if arr.shape[-2:] != camera.shape:
+        raise ShapeError(f"{name} must be {camera.shape[0]}x{camera.shape[1]} (H, W) for this camera, "
+                         f"got {arr.shape[-2]}x{arr.shape[-1]}")
+    single = arr.ndim == 2
+    stack = arr[None] if single else arr
+    if stack.shape[0] == 0:
+        raise InputError(f"{name} is an empty stack (0 frames)")
+    if arr.dtype.kind == "f":
+        if not _within_max_grey(stack):
+            ok = np.isfinite(stack)
+            if not ok.all():
+                t, r, c = (int(i) for i in np.argwhere(~ok)[0])
+                raise InputError(f"{name} must be finite, got {stack[t, r, c]} at frame {t}, "
+                                 f"pixel (row {r}, col {c})")
+            t, r, c = (int(i) for i in np.argwhere(np.abs(stack) > MAX_GREY)[0])
+            raise InputError(f"{name} must hold grey levels of magnitude at most {MAX_GREY:g}, got "
+                             f"{stack[t, r, c]} at frame {t}, pixel (row {r}, col {c})")
+        if arr.dtype.itemsize < 4:
+            stack = stack.astype(np.float32)
+        elif arr.dtype.itemsize > 8:
+            stack = stack.astype(np.float64)
+    elif arr.dtype.kind == "i" and stack.size and stack.min() < 0:
+        t, r, c = (int(i) for i in np.argwhere(stack < 0)[0])
+        raise InputError(f"{name} must be non-negative grey levels, got {stack[t, r, c]} at "
+                         f"frame {t}, pixel (row {r}, col {c})")
+    return stack, single
+
+
+def _within_max_grey(arr: np.ndarray) -> bool:
+    """True when a non-empty float array is finite and within ``MAX_GREY`` in magnitude."""
+    bound = np.asarray(MAX_GREY, dtype=np.result_type(arr.dtype, np.float64))
+    return bool(arr.min() >= -bound and arr.max() <= bound)  # NaN fails both
+
+
+def _mean0(frames: np.ndarray) -> np.ndarray:
+    """Mean over the first axis of a float64 array, to float64 rounding for any length.
+
+    Pairwise sums (error growing as log T, where numpy's reduction over the
+    first axis grows as T), then one correction pass: the pairwise mean of
+    the residuals, which are small, is added back.
+    """
+    t_n = frames.shape[0]
+    mean = _pairwise_sum0(frames) / t_n
+    return mean + _pairwise_sum0(frames - mean) / t_n
+
+
+def _pairwise_sum0(a: np.ndarray) -> np.ndarray:
+    """Sum over the first axis by pairwise halving (a new array)."""
+    while a.shape[0] > 1:
+        half = a.shape[0] // 2
+        total = a[:half] + a[half:2 * half]
+        if a.shape[0] % 2:
+            total[0] += a[-1]
+        a = total
+    return np.array(a[0])
+
+
+def _var0(frames: np.ndarray) -> np.ndarray:
+    """Sample variance (ddof = 1) over the first axis, with :func:`_mean0`'s accuracy."""
+    dev = frames - _mean0(frames)
+    return _pairwise_sum0(dev * dev) / (frames.shape[0] - 1)
+
+
+def _saturation_level(dtype: np.dtype, saturation: float | None) -> float:
+    if saturation is not None:
+        return saturation
+    if dtype.kind in "ui":
+        return float(np.iinfo(dtype).max)
+    return math.inf
+
+
+# ---------------------------------------------------------------------------- steps
+def subtract_baseline(frame, baseline=None, *, clip: bool = True) -> np.ndarray:
+    """Step 1: ``frame - baseline`` in float64, clipped at 0 (a new array).
+
+    Parameters
+    ----------
+    frame : (H, W) array_like
+    baseline : (H, W) array_like or None
+        The no-load frame (for example the mean of the first frames of a
+        stream); None subtracts nothing.
+    clip : bool
+        Clip at zero (default). The pipeline keeps the sign when a filter
+        follows, so that the filter averages zero-mean noise; its threshold
+        (>= 0) then does the clipping.
+    """
+    img = np.asarray(frame, dtype=np.float64)
+    if baseline is not None:
+        b = np.asarray(baseline, dtype=np.float64)
+        if b.shape != img.shape:
+            raise ShapeError(f"baseline must have the frame's shape {img.shape}, got {b.shape}")
+        img = img - b
+    return np.maximum(img, 0.0) if clip else np.array(img)
+
+
+def _gaussian_kernel(size: float) -> np.ndarray:
+    import cv2
+
+    radius = max(1, math.ceil(3.0 * size))
+    return cv2.getGaussianKernel(2 * radius + 1, size, cv2.CV_64F).ravel()
+
+
+def filter_radius(method: str, size: float) -> int:
+    """Pixels on each side that a filter reads (0 for ``"none"``)."""
+    if method == "gaussian":
+        return (len(_gaussian_kernel(size)) - 1) // 2
+    if method == "median":
+        return int(size) // 2
+    return 0
+
+
+def denoise(image, *, method: str = "none", size: float = 1.0) -> np.ndarray:
+    """Step 2: denoise a float image (a new array).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+    method : {"none", "gaussian", "median"}
+        ``"gaussian"``: separable Gaussian of standard deviation ``size``
+        pixels, truncated at ``ceil(3 size)``; ``"median"``: median over a
+        ``size x size`` window (odd integer ``size``). Borders reflect
+        (``cv2.BORDER_REFLECT_101`` / ``mode="mirror"``).
+    size : float
+        The filter's size (see ``method``).
+    """
+    img = np.array(image, dtype=np.float64)
+    if method == "none":
+        return img
+    if method == "gaussian":
+        import cv2
+
+        k = _gaussian_kernel(size)
+        return cv2.sepFilter2D(img, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT_101)
+    if method == "median":
+        from scipy.ndimage import median_filter
+
+        return median_filter(img, size=int(size), mode="mirror")
+    raise InputError(f"filter must be one of {FILTERS}, got {method!r}")
+
+
+def apply_threshold(image, threshold: float) -> np.ndarray:
+    """Step 3: keep pixels above ``threshold``, zero the rest (a new float64 array)."""
+    img = np.asarray(image, dtype=np.float64)
+    return np.where(img > threshold, img, 0.0)
+
+
+def readings_from_moments(G, M, saturated, floor, *, weight=None) -> Readings:
+    """Turn integrated values and moments into readings.
+
+    Parameters
+    ----------
+    G : (E,) or (T, E) array_like
+        Integrated grey value of each region.
+    M : (E, 2) or (T, E, 2) array_like
+        First moments of the centroid's weights (see ``weight``).
+    saturated : bool array_like, shape of ``G``
+    floor : (E,) array_like
+        Noise floor of G per region.
+    weight : array_like, shape of ``G``, optional
+        Sum of the centroid's weights, ``u = M / weight``; default ``G``
+        (the plain grey-value centroid). The pipeline weighs each lit value by
+        its height above the threshold (see :class:`Pipeline`).
+
+    Notes
+    -----
+    A region is in contact when ``G > floor`` and ``G > G_MIN`` (1e-250:
+    smaller sums are built of subnormal numbers); then ``u = M / weight``.
+    Regions not in contact read ``G = 0``, ``u = (0, 0)`` (never NaN).
+    """
+    g = np.asarray(G, dtype=np.float64)
+    m = np.asarray(M, dtype=np.float64)
+    w = g if weight is None else np.asarray(weight, dtype=np.float64)
+    contact = (g > floor) & (g > G_MIN)
+    g = np.where(contact, g, 0.0)
+    u = np.divide(m, w[..., None], out=np.zeros(m.shape), where=(contact & (w > 0))[..., None])
+    return Readings(g, u, contact, np.asarray(saturated, dtype=bool))
+
+
+def estimate_noise(frames) -> float:
+    """Temporal noise (grey levels, rms) of a no-load stack ``(T, H, W)``, ``T >= 2``.
+
+    The square root of the mean over pixels of the per-pixel sample variance.
+    """
+    try:
+        arr = np.asarray(frames)
+    except (ValueError, TypeError) as exc:
+        raise TypeError(f"frames must be a real numeric stack (T, H, W); could not make one ({exc})") from None
+    if arr.ndim != 3 or arr.shape[0] < 2:
+        raise ShapeError(f"estimate_noise needs a stack (T, H, W) with T >= 2, got {arr.shape}")
+    if arr.dtype.kind not in "uif":
+        raise TypeError(f"frames must be a real numeric stack, got dtype {arr.dtype}")
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        raise InputError("frames must be finite")
+    if arr.size and arr.dtype.kind == "f" and not _within_max_grey(arr):
+        raise InputError(f"frames must hold grey levels of magnitude at most {MAX_GREY:g}, got "
+                         f"{np.abs(arr).max()}")
+    var = _var0(arr.astype(np.float64))
+    return float(np.sqrt(var.mean())) if var.size else 0.0
