@@ -330,7 +330,10 @@ class Calibration:
         G = np.minimum(readings.G, self.g_max)
         radius = np.hypot(readings.u[..., 0], readings.u[..., 1])
         over_u = radius > self.u_max
-        scale = np.where(over_u, self.u_max / np.where(radius > 0, radius, 1.0), 1.0)
+        # Divide only where the centroid is clamped (radius > u_max >= 0): elsewhere a subnormal radius
+        # would overflow the quotient that np.where then discards.
+        scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
+                          where=over_u)
         u = readings.u * scale[..., None]
         clamped = readings.contact & ((readings.G > self.g_max) | over_u)
         s = G / self.g_scale

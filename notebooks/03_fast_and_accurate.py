@@ -17,7 +17,7 @@ import numpy as np
 from IPython.display import Image
 
 import optitact
-from optitact.bench import bench_render, render_cases
+from optitact.studies.bench_render import bench_render, render_cases
 from optitact.contact import contact_patches
 from optitact.render import spot_pixels
 from optitact.render.scene import patch_mesh

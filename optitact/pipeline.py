@@ -291,11 +291,12 @@ class Pipeline:
         n_false = self.region_weights.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
+        #: Threshold (grey levels) of each entry of :attr:`region_weights`.
         if self.threshold_map is None:
-            self._thr_entries = np.full(len(fold.pixel), self.threshold)
+            self.entry_threshold = np.full(len(fold.pixel), self.threshold)
         else:
-            self._thr_entries = self.threshold_map.reshape(-1)[fold.pixel]
-        region_thr = np.bincount(fold.label, self._thr_entries, minlength=len(fold.n_pixels))
+            self.entry_threshold = self.threshold_map.reshape(-1)[fold.pixel]
+        region_thr = np.bincount(fold.label, self.entry_threshold, minlength=len(fold.n_pixels))
         region_thr = np.divide(region_thr, fold.n_pixels, out=np.zeros(len(fold.n_pixels)),
                                where=fold.n_pixels > 0)
         with np.errstate(over="ignore"):
@@ -304,7 +305,8 @@ class Pipeline:
             raise InputError(f"the noise floor of G overflows float64 for min_pixels={self.min_pixels!r}, "
                              f"k={self.k!r}, noise_sigma={self.noise_sigma!r} and this baseline")
         self._levels: dict = {}
-        self._base_entries = (np.zeros(len(self.region_weights.pixel)) if self.baseline is None
+        #: Baseline value (grey levels) of each entry of :attr:`region_weights`.
+        self.entry_baseline = (np.zeros(len(self.region_weights.pixel)) if self.baseline is None
                               else self.baseline.reshape(-1)[self.region_weights.pixel])
 
     # ------------------------------------------------------------------ set-up
@@ -429,7 +431,7 @@ class Pipeline:
         """
         key = dtype.str
         if key not in self._levels:
-            b, thr = self._base_entries, self._thr_entries
+            b, thr = self.entry_baseline, self.entry_threshold
             sat = _saturation_level(dtype, self.saturation)
             if dtype.kind in "ui":
                 top = np.iinfo(dtype).max
@@ -472,19 +474,19 @@ class Pipeline:
             idx = np.flatnonzero(g > level)
             e = idx if t_n == 1 else idx % n_ent
             raw = g.reshape(-1)[idx]
-            v = raw - np.take(self._base_entries, e)
+            v = raw - np.take(self.entry_baseline, e)
             hot = idx[raw >= sat]
             if stack.dtype.kind == "f":  # candidates: the reference's test decides
-                keep = v > np.take(self._thr_entries, e)
+                keep = v > np.take(self.entry_threshold, e)
                 idx, e, v = idx[keep], e[keep], v[keep]
-            above = np.maximum(v - np.take(self._thr_entries, e), 0.0)
+            above = np.maximum(v - np.take(self.entry_threshold, e), 0.0)
             if watch.size:
                 wt, wi = np.nonzero(g[:, watch] >= sat)
                 hot = np.concatenate([hot, wt * n_ent + watch[wi]])
         else:
             idx, v, hot = self._filtered_lit(flat)
             e = idx % n_ent
-            above = np.maximum(v - np.take(self._thr_entries, e), 0.0)
+            above = np.maximum(v - np.take(self.entry_threshold, e), 0.0)
         key = fold.label[e]
         if t_n > 1:
             key = key + (idx // n_ent) * n_el
@@ -520,7 +522,7 @@ class Pipeline:
             img = denoise(subtract_baseline(crop, base, clip=False), method=self.filter,
                           size=self.filter_size)
             vals = np.take(img, local)
-            lit = np.flatnonzero(vals > self._thr_entries)
+            lit = np.flatnonzero(vals > self.entry_threshold)
             idx.append(i * n_ent + lit)
             v.append(vals[lit])
             hot.append(i * n_ent + np.flatnonzero(np.take(crop, local) >= sat))

@@ -102,7 +102,7 @@ class _SpotModel:
     @classmethod
     def build(cls, sensor, camera, ccd, element, *, margin_mm=4.0):
         pipe = Pipeline(sensor, camera, baseline=np.full(camera.shape, ccd.dark_offset))
-        fold = pipe._fold
+        fold = pipe.region_weights
         sel = fold.label == element
         pix = fold.pixel[sel]
         rows, cols = np.divmod(pix, camera.width)
@@ -117,7 +117,7 @@ class _SpotModel:
         xy = sensor.tangent_offset(np.full(rr.shape, element), pts)
         entries = (rows - r0) * (c1 - c0) + (cols - c0)
         return cls(sensor, camera, ccd, pipe, element, (r0, r1, c0, c1), xy, entries,
-                   fold.weights[:, sel], pipe._base_entries[sel], pipe._thr_entries[sel])
+                   fold.weights[:, sel], pipe.entry_baseline[sel], pipe.entry_threshold[sel])
 
     def radiance(self, energy: float, s: float, c) -> np.ndarray:
         """Window radiance of a spot of ``energy`` (DN mm^2 on the dome), rms width ``s`` (mm), centre ``c``."""
@@ -204,7 +204,7 @@ def _sweep_level(model: _SpotModel, energy: float, s: float, c, n_frames: int, s
     G, u, contact = np.concatenate(G), np.concatenate(u), np.concatenate(contact)
     rate = float(contact.mean())
     g_true = energy
-    n_eff = 4 * math.pi * s * s / float(model.pipe._fold.pixel_area[model.element])
+    n_eff = 4 * math.pi * s * s / float(model.pipe.region_weights.pixel_area[model.element])
     out = {"signal_factor": None, "energy_dn_mm2": energy, "electrons": n_e,
            "snr": n_e / math.sqrt(n_e + n_eff * (ccd.read_noise**2 + 1.0 / (12.0 * ccd.dn_per_electron**2))),
            "contact_rate": rate}

@@ -32,7 +32,7 @@ def test_g_is_the_exactly_rounded_sum_of_its_terms(ctx, seed):
     img[hot] = 10 ** rng.uniform(6, 14, hot.sum())
     pipe = ctx.pipeline(noise_sigma=0.0)
     r = pipe.process(img)
-    fold = pipe._fold  # private: the per-pixel weights of the fast method (no public seam yet)
+    fold = pipe.region_weights  # the per-pixel weights of the fast method
     terms = fold.weights[0] * img.reshape(-1)[fold.pixel]
     eps = np.finfo(np.float64).eps
     for e in range(N_EL):
