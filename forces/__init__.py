@@ -488,19 +488,10 @@ class ForceField:
 
 
 # ----------------------------------------------------------------------------- friction, slip, contact
-from .friction import (  # noqa: E402  (after ForceField: friction.py does not need it)
-    CONTOUR_THRESHOLD,
-    SLIP_THRESHOLD,
-    TABLE_THRESHOLD,
-    ContactDetector,
-    FrictionEstimate,
-    SlipDetector,
-    SlipEvent,
-    SlipResult,
-    detect_contact,
-    detect_slip,
-    friction_coefficient,
-)
+from ._series import CONTOUR_THRESHOLD, SLIP_THRESHOLD, TABLE_THRESHOLD  # noqa: E402
+from .contact_events import ContactDetector, detect_contact  # noqa: E402
+from .friction import FrictionEstimate, friction_coefficient  # noqa: E402
+from .slip import SlipDetector, SlipEvent, SlipResult, detect_slip  # noqa: E402
 
 __all__ += ["CONTOUR_THRESHOLD", "SLIP_THRESHOLD", "TABLE_THRESHOLD", "ContactDetector", "FrictionEstimate",
-            "SlipDetector", "SlipEvent", "SlipResult", "detect_contact", "detect_slip", "friction_coefficient"]
+            "SlipDetector", "SlipEvent", "SlipResult", "detect_slip", "detect_contact", "friction_coefficient"]
