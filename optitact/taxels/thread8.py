@@ -172,7 +172,11 @@ class Thread8(TaxelSource):
     and the limit :math:`R_{pr}` (≈ 0.5 kΩ). The divider gives
     :math:`V = V_+ R/(R_s + R)`; white noise is added and the ADC (reference
     :math:`V_+`) quantises to ``adc_bits``. Frames are uint8 (uint16 above 8
-    bits) DN (``layout.units == "DN"``). The row/column scan is treated as
+    bits) DN (``layout.units == "DN"``). The per-taxel sensitivities
+    :math:`s_i` include the whole sensor's factor ``sensor_gain``; object
+    poses are given in the jaw frame and moved into the patch frame by the
+    mounting offset ``mount_offset_mm`` and rotation ``mount_angle_rad``
+    (see :class:`Thread8Config`). The row/column scan is treated as
     simultaneous within a frame; crosstalk between threads is not modelled.
     """
 
