@@ -31,6 +31,9 @@ __all__ = ["FEATURES", "SENSORS", "PalpationDataset", "palpation_dataset", "palp
 
 #: Feature sets of the distance metrics: μ alone, σ alone, both (2-D DTW).
 FEATURES = ("mu", "sigma", "mu+sigma")
+#: Objects of the quick study (indices into OBJECTS): the rigid cylinder and the plastic bottle, the pair the
+#: full study confuses most (both stiff, similar contact strip), and two distinct ones (clay roll, soft ball).
+QUICK_OBJECTS = (1, 4, 6, 9)
 #: Jaws of the distance metrics: left, right, both (sum of the normalised per-jaw distances).
 SENSORS = ("left", "right", "both")
 
@@ -184,7 +187,7 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
         Seeds the grasps and the fold shuffle.
     full : bool
         Full size (all ten :data:`~optitact.taxels.grasp.OBJECTS` × 10 grasps,
-        10 folds) or quick (4 objects × 5 grasps, 5 folds: a few seconds).
+        10 folds) or quick (the 4 :data:`QUICK_OBJECTS` × 5 grasps, 5 folds: a few seconds).
     progress : bool
         tqdm progress bars on stderr.
 
@@ -194,13 +197,15 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
         ``config`` (left jaw), ``protocol``, ``objects`` (catalogue rows
         used), ``n_per_object``, ``n_folds``, ``ks``, ``table``
         (:func:`~optitact.taxels.dtw.classify`), ``grasps``
-        (:meth:`PalpationDataset.as_dict`), ``examples`` (μ and σ series of the
+        (:meth:`PalpationDataset.as_dict`), ``recognition`` (per metric the
+        [lowest, highest] mean rate over the ks, as ``PUBLISHED["recognition"]``),
+        ``jaws`` (each jaw's drawn sensor gain and mounting), ``examples`` (μ and σ series of the
         first grasp of every object, left jaw), ``rate_hz`` and ``chance``.
     """
     if full:
         objects, n_per, n_folds = OBJECTS, 10, 10
     else:
-        objects, n_per, n_folds = tuple(OBJECTS[i] for i in (0, 3, 6, 9)), 5, 5
+        objects, n_per, n_folds = tuple(OBJECTS[i] for i in QUICK_OBJECTS), 5, 5
     ks = (1, 3, 5)
     protocol = GraspProtocol()
     sensors = default_jaws(None)
@@ -209,12 +214,19 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
                              sensors=sensors, progress=progress)
     distances = palpation_distances(data, progress=progress)
     table = classify(distances, data.labels, ks=ks, n_folds=n_folds, seed=s_cv % 2 ** 31)
+    recognition = {}
+    for metric, rate in zip(table["metric"], table["mean"], strict=True):
+        lo, hi = recognition.get(metric, (np.inf, -np.inf))
+        recognition[metric] = (min(lo, float(rate)), max(hi, float(rate)))
     feats = data.features("left")
     first = [int(np.flatnonzero(data.labels == i)[0]) for i in range(len(objects))]
     return {
         "config": dataclasses.asdict(sensors[0].config), "protocol": dataclasses.asdict(protocol),
         "objects": [o.as_dict() for o in objects], "n_per_object": n_per, "n_folds": n_folds, "ks": list(ks),
         "chance": 1.0 / len(objects), "rate_hz": sensors[0].layout.rate_hz, "table": table,
+        "recognition": {m: list(v) for m, v in recognition.items()},
+        "jaws": [{"sensor_gain": s.sensor_gain, "mount_offset_mm": list(s.mount_offset_mm),
+                  "mount_angle_rad": s.mount_angle_rad} for s in sensors],
         "grasps": data.as_dict(),
         "examples": {"object": [objects[i].name for i in range(len(objects))],
                      "mu": [feats[j][:, 0].tolist() for j in first],

@@ -30,8 +30,8 @@ from ..sources import Indenter, Layout, Scenario
 from .base import fraction
 from .thread8 import SUPPORTED_SHAPES, Thread8, Thread8Config
 
-__all__ = ["PalpationObject", "OBJECTS", "GraspProtocol", "Grasp", "grasp", "default_jaws", "frame_features",
-           "mu_sigma"]
+__all__ = ["PalpationObject", "OBJECTS", "GraspProtocol", "Grasp", "grasp", "default_jaws", "MOUNT_SPREAD",
+           "frame_features", "mu_sigma"]
 
 
 @dataclass(frozen=True)
@@ -102,6 +102,21 @@ class GraspProtocol:
     by ``max_precontact`` of its width; it then closes ``n_steps`` steps of
     ``step_mm`` at ``step_speed_mm_s``, holding ``hold_s`` after each, and opens
     the same steps back to the contact position.
+
+    *Variability of a real gripper* (each drawn per grasp from its seed; set
+    to 0 with :meth:`ideal`):
+
+    - ``latency_s``: the controller reacts to the contact reading after a
+      delay uniform in this range (at least one frame period, 10 ms: the
+      frame must be read and the decision sent; up to 50 ms: a servo command
+      over a serial bus plus deceleration), during which the jaws keep closing
+      at ``close_speed_mm_s``: the squeeze starts from a pre-compression that
+      differs from grasp to grasp (contact onset).
+    - ``step_error_mm``: 1-sigma error of every commanded gap (each squeeze and
+      release step's target, independently): the position repeatability of a
+      small servo-driven parallel gripper (about ±0.1 mm). The gripper is
+      position controlled, so this is the grasp-force spread: the force
+      follows from the gap through the object's and the pads' stiffness.
     """
 
     close_speed_mm_s: float = 10.0               # mm/s, closing speed before contact (gap)
@@ -113,11 +128,13 @@ class GraspProtocol:
     step_speed_mm_s: float = 10.0                # mm/s, gap speed during a step
     hold_s: float = 0.4                          # s, hold after each step
     offset_mm: float = 2.5                       # mm, object centre uniform in ±offset on the patch (x and y)
+    latency_s: tuple[float, float] = (0.01, 0.05)  # s, range of the reaction time after contact detection
+    step_error_mm: float = 0.1                   # mm, 1-sigma error of each commanded gap (repeatability)
 
     def __post_init__(self) -> None:
         for name in ("close_speed_mm_s", "contact_dn", "step_mm", "step_speed_mm_s"):
             positive(getattr(self, name), name)
-        for name in ("hold_s", "offset_mm"):
+        for name in ("hold_s", "offset_mm", "step_error_mm"):
             positive(getattr(self, name), name, allow_zero=True)
         integer(self.n_steps, "n_steps", minimum=1)
         fraction(self.max_precontact, "max_precontact")
@@ -126,15 +143,51 @@ class GraspProtocol:
             raise InputError(f"clearance_mm must be (low, high) with 0 < low <= high, "
                              f"got {self.clearance_mm!r}")
         object.__setattr__(self, "clearance_mm", (float(arr[0]), float(arr[1])))
+        lat = real_array(self.latency_s, "latency_s")
+        if lat.shape != (2,) or not np.all(np.isfinite(lat)) or not 0 <= lat[0] <= lat[1]:
+            raise InputError(f"latency_s must be (low, high) with 0 <= low <= high, got {self.latency_s!r}")
+        object.__setattr__(self, "latency_s", (float(lat[0]), float(lat[1])))
 
-    def step_profile(self, rate_hz: float) -> np.ndarray:
-        """Gap reduction (mm) after contact for the squeeze and release phases, one value per frame."""
+    @classmethod
+    def ideal(cls, **changes) -> GraspProtocol:
+        """The protocol of an ideal gripper: no reaction latency, exact steps (``changes`` override fields).
+
+        Examples
+        --------
+        >>> p = GraspProtocol.ideal()
+        >>> p.latency_s, p.step_error_mm
+        ((0.0, 0.0), 0.0)
+        """
+        return cls(**{"latency_s": (0.0, 0.0), "step_error_mm": 0.0, **changes})
+
+    def step_profile(self, rate_hz: float, errors_mm=None) -> np.ndarray:
+        """Gap reduction (mm) after contact for the squeeze and release phases, one value per frame.
+
+        Parameters
+        ----------
+        rate_hz : float
+            Frame rate.
+        errors_mm : (2 n_steps,) array, optional
+            Error of each step's target gap reduction (squeeze steps, then
+            release steps; the last release returns to the contact position plus
+            its error); the gap moves linearly from one target to the next.
+            None: exact steps.
+        """
         n_move = max(1, int(round(self.step_mm / self.step_speed_mm_s * rate_hz)))
         n_hold = int(round(self.hold_s * rate_hz))
-        step = np.concatenate([np.arange(1, n_move + 1) / n_move, np.ones(n_hold)]) * self.step_mm
-        up = [i * self.step_mm + step for i in range(self.n_steps)]
-        down = [(self.n_steps - i) * self.step_mm - step for i in range(self.n_steps)]
-        return np.concatenate(up + down)
+        frac = np.concatenate([np.arange(1, n_move + 1) / n_move, np.ones(n_hold)])
+        step = frac * self.step_mm
+        if errors_mm is None:
+            up = [i * self.step_mm + step for i in range(self.n_steps)]
+            down = [(self.n_steps - i) * self.step_mm - step for i in range(self.n_steps)]
+            return np.concatenate(up + down)
+        err = real_array(errors_mm, "errors_mm")
+        if err.shape != (2 * self.n_steps,):
+            raise InputError(f"errors_mm must have shape ({2 * self.n_steps},), got {err.shape}")
+        n = self.n_steps
+        targets = np.r_[np.arange(1, n + 1), np.arange(n - 1, -1, -1)] * self.step_mm + err
+        starts = np.r_[0.0, targets[:-1]]
+        return np.concatenate([a + frac * (b - a) for a, b in zip(starts, targets, strict=True)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +203,8 @@ class Grasp:
     depth_mm : (T,) float
         Approach of the object into each jaw since first touch (half the gap reduction), mm.
     contact_frame : int
-        Frame at which the gripper detected contact and started the squeeze steps.
+        Frame at which the gripper detected contact; the squeeze steps start
+        after the reaction latency (at once with :meth:`GraspProtocol.ideal`).
     x_mm, y_mm, angle_rad : float
         The object's pose on the left patch (mirrored in x on the right one).
     """
@@ -165,10 +219,22 @@ class Grasp:
     angle_rad: float
 
 
+#: mm and rad, 1-sigma placement of a hand-glued patch on its jaw (by eye: about 1 mm and 3 degrees).
+MOUNT_SPREAD = (1.0, math.radians(3.0))
+
+
 def default_jaws(sensors=None) -> tuple[Thread8, Thread8]:
-    """The (left, right) jaws: ``sensors`` checked, or two arrays with ``unit_seed`` 0 and 1 for None."""
+    """The (left, right) jaws: ``sensors`` checked, or two hand-made arrays for None.
+
+    The default arrays have ``unit_seed`` 0 and 1 and are glued on their jaws
+    with the placement spread :data:`MOUNT_SPREAD` (``mount_spread_mm``,
+    ``mount_spread_rad``); their per-taxel and whole-sensor sensitivities
+    differ (:class:`~optitact.taxels.thread8.Thread8Config`).
+    """
     if sensors is None:
-        return Thread8(Thread8Config(unit_seed=0)), Thread8(Thread8Config(unit_seed=1))
+        mm, rad = MOUNT_SPREAD
+        return tuple(Thread8(Thread8Config(unit_seed=i, mount_spread_mm=mm, mount_spread_rad=rad))
+                     for i in (0, 1))
     if (not isinstance(sensors, (tuple, list)) or len(sensors) != 2
             or not all(isinstance(s, Thread8) for s in sensors)):
         raise TypeError(f"sensors must be a pair (left, right) of Thread8, got {sensors!r}")
@@ -187,7 +253,8 @@ def grasp(obj: PalpationObject, *, seed: int | None = None, protocol: GraspProto
     obj : PalpationObject
         For example one of :data:`OBJECTS`.
     seed : int, optional
-        Seeds the pose (offset on the patch, axis angle, initial clearance) and both jaws' noise.
+        Seeds the pose (offset on the patch, axis angle, initial clearance), the
+        gripper's latency and step errors, and both jaws' noise.
     protocol : GraspProtocol, optional
         Gripper motion; ``GraspProtocol()`` by default.
     sensors : (Thread8, Thread8), optional
@@ -225,6 +292,10 @@ def grasp(obj: PalpationObject, *, seed: int | None = None, protocol: GraspProto
     x, y = rng.uniform(-protocol.offset_mm, protocol.offset_mm, size=2) if protocol.offset_mm else (0.0, 0.0)
     angle = float(rng.uniform(0.0, math.pi))
     clearance = float(rng.uniform(*protocol.clearance_mm))
+    # gripper variability, drawn after the pose (an ideal protocol leaves the pose draws unchanged)
+    latency = float(rng.uniform(*protocol.latency_s)) if protocol.latency_s[1] > 0 else 0.0
+    errors = (protocol.step_error_mm * rng.standard_normal(2 * protocol.n_steps)
+              if protocol.step_error_mm > 0 else None)
     rate = left.layout.rate_hz
     ind = obj.indenter
     poses = ((left, x, angle), (right, -x, math.pi - angle))
@@ -246,7 +317,13 @@ def grasp(obj: PalpationObject, *, seed: int | None = None, protocol: GraspProto
         if detected.any():
             k_contact = start + int(np.argmax(detected))
             break
-    depth = np.concatenate([ramp[:k_contact + 1], ramp[k_contact] + protocol.step_profile(rate) / 2.0])
+    # the jaws keep closing for the reaction latency, then step from where they stopped
+    n_lat = int(math.ceil(latency * rate - 1e-9))
+    d_stop = ramp[k_contact] + protocol.close_speed_mm_s * latency / 2.0
+    coast = np.minimum(ramp[k_contact] + np.arange(1, n_lat + 1) * per_frame / 2.0, d_stop)
+    start = ramp[k_contact] if n_lat == 0 else d_stop
+    squeeze = np.maximum(start + protocol.step_profile(rate, errors) / 2.0, 0.0)
+    depth = np.concatenate([ramp[:k_contact + 1], coast, squeeze])
     t = np.arange(depth.size) / rate
     out = []
     for (src, px, pa), s_noise in zip(poses, (s_left, s_right), strict=True):

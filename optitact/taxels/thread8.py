@@ -42,12 +42,24 @@ SUPPORTED_SHAPES = ("sphere", "cylinder", "box", "flat")
 
 @dataclass(frozen=True)
 class Thread8Config:
-    """The 8×8 piezoresistive thread-electrode array on a gripper jaw.
+    r"""The 8×8 piezoresistive thread-electrode array on a gripper jaw.
 
-    Every field states its unit. Per-taxel sensitivities are drawn once from
+    Every field states its unit. Per-taxel sensitivities, the whole sensor's
+    sensitivity factor and its mounting offset/rotation are drawn once from
     ``unit_seed``, so one config describes one physical sensor; noise is drawn
     from the ``seed`` of each :meth:`Thread8.frames` call. The patch side is
     ``rows * pitch_mm`` (20 mm by default).
+
+    *Sensor-to-sensor variability.* The arrays are hand-made (conductive
+    threads sewn over a piezoresistive film), so the film's thickness and the
+    threads' contact pressure differ from sensor to sensor: the whole sensor's
+    sensitivity is scaled by :math:`e^{\sigma_s z}` (``sensor_gain_spread``
+    :math:`\sigma_s` = 0.2, i.e. about ±20 %, the sheet-to-sheet spread of
+    commercial piezoresistive films such as Velostat is of that order).
+    ``mount_spread_mm`` / ``mount_spread_rad`` describe how precisely the patch
+    was glued on its jaw (0: exactly centred and aligned, the default for a
+    sensor on its own; :func:`optitact.taxels.grasp.default_jaws` uses 1 mm
+    and 3°: placement by eye). Set all three to 0 for an ideal sensor.
     """
 
     rows: int = 8                          # taxels along y
@@ -65,6 +77,9 @@ class Thread8Config:
     creep_fraction: float = 0.15           # 1, steady-state relative rise of effective pressure (p → ∞)
     hysteresis: float = 0.08               # fraction of the peak pressure: widest unloading/loading gap
     sensitivity_spread: float = 0.1        # 1-sigma of ln(sensitivity) across taxels (unit_seed)
+    sensor_gain_spread: float = 0.2        # 1-sigma of ln(whole-sensor sensitivity), hand-made (unit_seed)
+    mount_spread_mm: float = 0.0           # mm, 1-sigma of the patch's offset on its jaw, x and y (unit_seed)
+    mount_spread_rad: float = 0.0          # rad, 1-sigma of the patch's rotation on its jaw (unit_seed)
     unit_seed: int = 0                     # seed of this sensor's per-taxel sensitivities
     adc_bits: int = 8                      # bits of the ADC
     rate_hz: float = 100.0                 # frames / s
@@ -84,7 +99,8 @@ class Thread8Config:
                      "threshold_kpa", "transition_kpa", "creep_kpa", "creep_tau_s", "rate_hz",
                      "pad_modulus_mpa", "pad_thickness_mm", "grid_mm"):
             positive(getattr(self, name), name)
-        for name in ("sensitivity_spread", "noise_v"):
+        for name in ("sensitivity_spread", "sensor_gain_spread", "mount_spread_mm", "mount_spread_rad",
+                     "noise_v"):
             positive(getattr(self, name), name, allow_zero=True)
         fraction(self.creep_fraction, "creep_fraction")
         fraction(self.hysteresis, "hysteresis", upper=0.5)
@@ -156,7 +172,11 @@ class Thread8(TaxelSource):
     and the limit :math:`R_{pr}` (≈ 0.5 kΩ). The divider gives
     :math:`V = V_+ R/(R_s + R)`; white noise is added and the ADC (reference
     :math:`V_+`) quantises to ``adc_bits``. Frames are uint8 (uint16 above 8
-    bits) DN (``layout.units == "DN"``). The row/column scan is treated as
+    bits) DN (``layout.units == "DN"``). The per-taxel sensitivities
+    :math:`s_i` include the whole sensor's factor ``sensor_gain``; object
+    poses are given in the jaw frame and moved into the patch frame by the
+    mounting offset ``mount_offset_mm`` and rotation ``mount_angle_rad``
+    (see :class:`Thread8Config`). The row/column scan is treated as
     simultaneous within a frame; crosstalk between threads is not modelled.
     """
 
@@ -169,7 +189,16 @@ class Thread8(TaxelSource):
 
     def _setup(self, c: Thread8Config) -> None:
         rng = np.random.default_rng(c.unit_seed)
-        self.sensitivity = unit_gains(rng, (c.rows, c.cols), c.sensitivity_spread)
+        gains = unit_gains(rng, (c.rows, c.cols), c.sensitivity_spread)
+        # drawn after the per-taxel gains (those stay as before); spread 0 gives exactly 1 / 0
+        z_sensor, zx, zy, za = rng.standard_normal(4)
+        #: whole-sensor sensitivity factor (hand-made sensor), 1
+        self.sensor_gain = float(np.exp(c.sensor_gain_spread * z_sensor))
+        self.sensitivity = gains * self.sensor_gain if self.sensor_gain != 1.0 else gains
+        self.sensitivity.setflags(write=False)
+        #: the patch centre's offset on its jaw (x, y), mm, and its in-plane rotation, rad
+        self.mount_offset_mm = (float(c.mount_spread_mm * zx), float(c.mount_spread_mm * zy))
+        self.mount_angle_rad = float(c.mount_spread_rad * za)
         self._sub = int(round(c.pitch_mm / c.grid_mm))
         ny, nx = c.rows * self._sub, c.cols * self._sub
         gy = (np.arange(ny) - (ny - 1) / 2) * c.grid_mm
@@ -200,7 +229,17 @@ class Thread8(TaxelSource):
 
     # ---- contact ---------------------------------------------------------------------------------
     def _heights(self, ind: Indenter, x, y, ang) -> np.ndarray:
-        """Object surface above its crest on the grid, (n, N) mm (inf where it cannot touch)."""
+        """Object surface above its crest on the grid, (n, N) mm (inf where it cannot touch).
+
+        The pose (jaw frame) is moved into the patch frame: minus the mounting
+        offset, rotated by minus the mounting angle.
+        """
+        ox, oy = self.mount_offset_mm
+        th = self.mount_angle_rad
+        if ox or oy or th:
+            dx, dy = np.asarray(x, dtype=float) - ox, np.asarray(y, dtype=float) - oy
+            cs, sn = math.cos(th), math.sin(th)
+            x, y, ang = cs * dx + sn * dy, -sn * dx + cs * dy, np.asarray(ang, dtype=float) - th
         return surface_height(ind, self._gx, self._gy, x, y, ang)
 
     def _stiffness(self, ind: Indenter) -> tuple[float, float]:

@@ -17,8 +17,8 @@ def test_docstring_examples():
 
 
 def test_grasp_protocol_and_seed():
-    proto = GraspProtocol()
-    g = grasp(OBJECTS[1], seed=3)
+    proto = GraspProtocol.ideal()
+    g = grasp(OBJECTS[1], seed=3, protocol=GraspProtocol.ideal())
     steps = proto.step_profile(100.0)
     n_move, n_hold = 10, 40
     assert steps.size == 2 * proto.n_steps * (n_move + n_hold)
@@ -27,10 +27,10 @@ def test_grasp_protocol_and_seed():
     np.testing.assert_allclose(g.depth_mm.max(), d_c + proto.n_steps * proto.step_mm / 2, rtol=0, atol=1e-12)
     np.testing.assert_allclose(g.depth_mm[-1], d_c, rtol=0, atol=1e-12)
     assert g.left[g.contact_frame].max() >= 10 and g.left[: max(g.contact_frame - 5, 1)].max() < 10
-    same = grasp(OBJECTS[1], seed=3)
+    same = grasp(OBJECTS[1], seed=3, protocol=GraspProtocol.ideal())
     np.testing.assert_array_equal(g.left, same.left)
     np.testing.assert_array_equal(g.right, same.right)
-    other = grasp(OBJECTS[1], seed=4)
+    other = grasp(OBJECTS[1], seed=4, protocol=GraspProtocol.ideal())
     assert (other.x_mm, other.left.shape) != (g.x_mm, g.left.shape) or not np.array_equal(other.left, g.left)
     with pytest.raises(TypeError, match="PalpationObject"):
         grasp(OBJECTS[0].indenter, seed=0)
