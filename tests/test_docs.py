@@ -18,7 +18,8 @@ def _modules() -> list[str]:
     names = ["optitact"]
     for pkg in ("optitact", "optitact.render", "optitact.calib", "optitact.forces"):
         mod = importlib.import_module(pkg)
-        names += [m.name for m in pkgutil.walk_packages(mod.__path__, prefix=f"{pkg}.")]
+        names += [m.name for m in pkgutil.walk_packages(mod.__path__, prefix=f"{pkg}.")
+                  if not m.name.endswith(".__main__")]  # running a __main__ would run the CLI
     return sorted(set(names))
 
 
