@@ -113,3 +113,29 @@ def test_require_imports_what_is_there(name):
     from optitact._optional import require
 
     assert require(name).__name__ == name
+
+
+def test_the_library_never_imports_the_studies_layer(tmp_path):
+    """Every library module (all but optitact.studies and the CLI that runs studies) imports without it."""
+    code = textwrap.dedent("""
+        import importlib, pkgutil, sys
+        import optitact
+        names = []
+
+        def walk(pkg):  # pkgutil.walk_packages would import optitact.studies to look inside it
+            for m in pkgutil.iter_modules(importlib.import_module(pkg).__path__, prefix=pkg + "."):
+                if m.name.startswith(("optitact.studies", "optitact.cli")):
+                    continue
+                importlib.import_module(m.name)
+                names.append(m.name)
+                if m.ispkg:
+                    walk(m.name)
+
+        for pkg in ("optitact", "optitact.render", "optitact.calib", "optitact.forces"):
+            walk(pkg)
+        print(len(names), sorted(m for m in sys.modules if m.startswith("optitact.studies")))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    n, studies = r.stdout.split(" ", 1)
+    assert int(n) > 30 and studies.strip() == "[]"
