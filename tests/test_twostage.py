@@ -219,3 +219,20 @@ def test_adaptive_sampling_reaches_its_target():
         render(SENSOR, LOAD, camera=CAM, target_error=0)
     with pytest.raises(ValueError, match="target_error is for transport='path'"):
         render(SENSOR, LOAD, camera=CAM, target_error=0.01, transport="two_stage")
+
+
+def test_bench_render_uses_the_table_it_is_given(tiny_table, monkeypatch):
+    """bench_render(table=...) once reset its argument and built the default 4096-spp table (minutes)."""
+    from optitact.studies import bench_render as br
+
+    def no_table(*args, **kwargs):
+        raise AssertionError("bench_render built a table although one was given")
+
+    import optitact.render.twostage as ts
+
+    monkeypatch.setattr(ts, "emission_table", no_table)
+    out = br.bench_render((1,), modes=("two_stage",), n_subs=(2,), reference_spp=8, width=CAM.width,
+                          height=CAM.height, cases=("1-heavy",), table=tiny_table, progress=False)
+    assert [r["mode"] for r in out["rows"]] == ["two_stage"]
+    assert out["rows"][0]["g_rel_error"] >= 0
+    assert out["headline"]["best_mode"] in ("two_stage", None)  # a mode alone, at or off the target

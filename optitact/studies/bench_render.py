@@ -161,7 +161,6 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     t0 = time.perf_counter()
     noload = noload_radiance(sensor, camera, variant=variant)
     one_time["noload_s"] = round(time.perf_counter() - t0, 2)
-    table = None
     if "two_stage" in modes:
         t0 = time.perf_counter()
         if table is None:
@@ -248,11 +247,11 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     head_case = "41" if "41" in names else names[-1]
     t_modes = {m: time_at_target(head_case, m) for m in modes}
     reached = {m: t for m, t in t_modes.items() if t is not None}
-    best_mode = min(reached, key=reached.get)
+    best_mode = min(reached, key=reached.get) if reached else None  # None: no mode reached the target
     headline = {"case": head_case, "error_measure": err_key, "target": target,
                 "seconds_at_target": {m: None if t is None else round(t, 4) for m, t in t_modes.items()},
                 "best_mode": best_mode,
-                "calibration_frame_s": round(reached[best_mode], 4)}
+                "calibration_frame_s": None if best_mode is None else round(reached[best_mode], 4)}
     if "brute" in reached:
         headline["speedup_at_equal_error"] = round(reached["brute"] / reached[best_mode], 1)
     result = {"variant": active_variant()["variant"], "size": f"{camera.width}x{camera.height}",
