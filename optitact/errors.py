@@ -6,7 +6,7 @@ catch ``ValueError`` or ``TypeError`` keep working.
 
 from __future__ import annotations
 
-__all__ = ["OptitactError", "ShapeError", "InputError", "RenderError", "MissingExtraError"]
+__all__ = ["OptitactError", "ShapeError", "InputError", "RenderError", "MissingExtraError", "KindError"]
 
 
 class OptitactError(Exception):
@@ -27,3 +27,11 @@ class RenderError(OptitactError, RuntimeError):
 
 class MissingExtraError(OptitactError, ImportError):
     """An optional dependency is not installed; the message names the extra that brings it."""
+
+
+class KindError(OptitactError, TypeError):
+    """Data of the wrong kind (e.g. a frame whose dtype is not a number) where a user's data came in.
+
+    A ``TypeError``, so callers catching it keep working; a subclass so that
+    the command line can tell the user's bad data from a programming error.
+    """

@@ -22,7 +22,7 @@ import numpy as np
 
 from ._validate import check_type
 from .camera import FisheyeCamera
-from .errors import InputError, ShapeError
+from .errors import InputError, KindError, ShapeError
 from .readings import Readings
 
 __all__ = ["FILTERS", "G_MIN", "MAX_GREY", "apply_threshold", "check_frames", "denoise", "estimate_noise",
@@ -65,10 +65,10 @@ def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[n
     try:
         arr = np.asarray(frames)
     except (ValueError, TypeError) as exc:  # ragged nested sequences
-        raise TypeError(f"{name} must be an array of grey levels (H, W) or (T, H, W); "
+        raise KindError(f"{name} must be an array of grey levels (H, W) or (T, H, W); "
                         f"could not make one ({exc})") from None
     if arr.dtype.kind not in "uif":
-        raise TypeError(f"{name} must have an unsigned/signed integer or float dtype "
+        raise KindError(f"{name} must have an unsigned/signed integer or float dtype "
                         f"(uint8, uint16, float32, float64), got {arr.dtype}")
     if arr.ndim not in (2, 3):
         raise ShapeError(f"{name} must be a frame (H, W) or a stack (T, H, W), got shape {arr.shape}")
@@ -258,11 +258,11 @@ def estimate_noise(frames) -> float:
     try:
         arr = np.asarray(frames)
     except (ValueError, TypeError) as exc:
-        raise TypeError(f"frames must be a real numeric stack (T, H, W); could not make one ({exc})") from None
+        raise KindError(f"frames must be a real numeric stack (T, H, W); could not make one ({exc})") from None
     if arr.ndim != 3 or arr.shape[0] < 2:
         raise ShapeError(f"estimate_noise needs a stack (T, H, W) with T >= 2, got {arr.shape}")
     if arr.dtype.kind not in "uif":
-        raise TypeError(f"frames must be a real numeric stack, got dtype {arr.dtype}")
+        raise KindError(f"frames must be a real numeric stack, got dtype {arr.dtype}")
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise InputError("frames must be finite")
     if arr.size and arr.dtype.kind == "f" and not _within_max_grey(arr):

@@ -234,3 +234,14 @@ def test_process_files_errors_leave_no_file(tmp_path, frames):
         process_files([tmp_path / "a.npy"])
     with pytest.raises(TypeError, match="pipeline must be a Pipeline, got str"):
         process_files([tmp_path / "a.npy"], pipeline="fast")
+
+
+def test_a_frame_file_of_text_is_bad_input_not_a_bug(tmp_path, capsys):
+    """A .npy of strings is the user's bad data: one line and exit 2 (a TypeError subclass), no traceback."""
+    np.save(tmp_path / "words.npy", np.full((120, 160), "a"))
+    assert main(["process", str(tmp_path / "words.npy"), "--out", str(tmp_path / "r.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("optitact: error:") and "dtype" in last
+    assert not (tmp_path / "r.csv").exists()
