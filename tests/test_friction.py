@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import doctest
 
 import numpy as np
 import pytest
 
-import optitact.forces as forces
 from optitact.errors import InputError, ShapeError
 from optitact.forces import (
     ContactDetector,
@@ -16,10 +14,6 @@ from optitact.forces import (
     detect_slip,
     friction_coefficient,
 )
-
-
-def test_docstring_examples():
-    assert doctest.testmod(forces.friction, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 # ---------------------------------------------------------------------------- friction

@@ -1,6 +1,5 @@
 """The shared taxel base (config, seeds, scenario checks, constructor) and the one indenter geometry."""
 
-import doctest
 import math
 import subprocess
 import sys
@@ -11,14 +10,9 @@ import pytest
 
 from optitact.errors import InputError
 from optitact.sources import Indenter, Scenario
-from optitact.taxels import base, indenter
+from optitact.taxels import base
 from optitact.taxels.base import TaxelSource, check_config, check_scenario, fraction, range_pair
 from optitact.taxels.indenter import overlap, surface_height
-
-
-@pytest.mark.parametrize("module", [base, indenter])
-def test_docstring_examples(module):
-    assert doctest.testmod(module, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_fraction_and_range_pair():

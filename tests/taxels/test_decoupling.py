@@ -1,14 +1,11 @@
 """Plane resultants, decoupling, ranges, the calibrated matrix and the repeatability error."""
 
-import doctest
 
 import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
 from optitact.sources import Indenter, Scenario
-from optitact.studies import fingertip_objects
-from optitact.taxels import decoupling, fingertip25
 from optitact.taxels.decoupling import (DecouplingMatrix, axis_ranges, decouple, detection_ranges,
                                         plane_resultants, repeatability_error)
 from optitact.taxels.fingertip25 import PLANE_AXIS, UNIT_SIDE, Fingertip25, Fingertip25Config
@@ -25,11 +22,6 @@ def quiet(fingertip_quiet):
 
 def scenario(force, direction=(0.0, 0.0, 1.0), n=5, rate=100.0):
     return Scenario(Indenter("point"), t_s=np.arange(n) / rate, force_n=force, extra={"direction": direction})
-
-
-@pytest.mark.parametrize("module", [fingertip25, decoupling, fingertip_objects], ids=lambda m: m.__name__)
-def test_docstring_examples(module):
-    assert doctest.testmod(module, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_detection_ranges_from_the_formula():

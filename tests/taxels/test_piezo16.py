@@ -1,6 +1,5 @@
 """The piezo16 finger pad: response law, config, layout and simulated frames."""
 
-import doctest
 import math
 
 import numpy as np
@@ -8,7 +7,6 @@ import pytest
 
 from optitact.errors import InputError, ShapeError
 from optitact.sources import Indenter, Scenario, TactileSource, make_source
-from optitact.taxels import piezo16
 from optitact.taxels.piezo16 import FINGER_PAD_MASK, Piezo16, Piezo16Config, unit_voltage
 
 PITCH = 2.2
@@ -27,10 +25,6 @@ def src(piezo16_source):
 @pytest.fixture
 def ideal(piezo16_ideal):
     return piezo16_ideal
-
-
-def test_docstring_examples():
-    assert doctest.testmod(piezo16, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_law_published_values():

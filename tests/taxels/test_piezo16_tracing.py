@@ -1,6 +1,5 @@
 """Active tracing with the piezo16 pad: traces, combined distribution, features, width classifier."""
 
-import doctest
 import math
 
 import numpy as np
@@ -8,7 +7,6 @@ import pytest
 
 from optitact.errors import InputError, ShapeError
 from optitact.sources import Indenter, Layout, Scenario
-from optitact.taxels import combined
 from optitact.taxels.combined import (WidthClassifier, combined_distribution, diameter_resolution, features,
                                       pair_separation, radial_line, trace)
 from optitact.taxels.piezo16 import Piezo16, Piezo16Config
@@ -25,10 +23,6 @@ def src(piezo16_source):
 @pytest.fixture
 def ideal(piezo16_ideal):
     return piezo16_ideal
-
-
-def test_docstring_examples():
-    assert doctest.testmod(combined, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_trace_deterministic_by_seed(src):

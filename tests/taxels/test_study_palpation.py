@@ -1,6 +1,5 @@
 """The palpation study (optitact.studies.palpation): dataset, distances, recognition table, figure."""
 
-import doctest
 import json
 
 import numpy as np
@@ -17,10 +16,6 @@ from optitact.taxels.grasp import OBJECTS, frame_features
 @pytest.fixture
 def result(palpation_result):
     return palpation_result
-
-
-def test_docstring_examples():
-    assert doctest.testmod(palpation, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_dataset_seed_and_table():

@@ -1,6 +1,5 @@
 """The tracing study (optitact.studies.tracing): dataset, table behaviour, figure."""
 
-import doctest
 import json
 import math
 
@@ -9,7 +8,6 @@ import pytest
 
 from optitact import studies
 from optitact.errors import InputError
-from optitact.studies import tracing
 from optitact.studies.tracing import tracing_dataset
 
 
@@ -21,10 +19,6 @@ def src(piezo16_source):
 @pytest.fixture
 def result(tracing_result):
     return tracing_result
-
-
-def test_docstring_examples():
-    assert doctest.testmod(tracing, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_tracing_dataset_deterministic(src):

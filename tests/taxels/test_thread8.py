@@ -1,6 +1,5 @@
 """The thread8 array: config, contact mechanics, film response, ADC frames."""
 
-import doctest
 import math
 
 import numpy as np
@@ -8,7 +7,6 @@ import pytest
 
 from optitact.errors import InputError
 from optitact.sources import Indenter, Scenario, TactileSource, make_source
-from optitact.taxels import thread8
 from optitact.taxels.grasp import OBJECTS
 from optitact.taxels.thread8 import Thread8, Thread8Config
 
@@ -23,10 +21,6 @@ def scenario(indenter, depth, *, rate=100.0, **pose):
 @pytest.fixture
 def src(thread8_source):
     return thread8_source
-
-
-def test_docstring_examples():
-    assert doctest.testmod(thread8, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_registered_source_and_layout():

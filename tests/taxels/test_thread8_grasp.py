@@ -1,19 +1,13 @@
 """Grasps with a thread8 array on each gripper jaw, and the per-frame features."""
 
-import doctest
 
 import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
 from optitact.sources import Indenter
-from optitact.taxels import grasp as grasp_module
 from optitact.taxels.grasp import OBJECTS, GraspProtocol, PalpationObject, frame_features, grasp
 from optitact.taxels.thread8 import Thread8
-
-
-def test_docstring_examples():
-    assert doctest.testmod(grasp_module, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 def test_grasp_protocol_and_seed():

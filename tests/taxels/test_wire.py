@@ -1,13 +1,11 @@
 """The wire chain: offset removal, normalisation tables, wire shape, the 2-D lookup table."""
 
-import doctest
 
 import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
 from optitact.sources import Indenter
-from optitact.taxels import opto5, wire
 from optitact.taxels.opto5 import Opto5, grasp_scenario
 from optitact.taxels.wire import (LookupTableClassifier, NormalisationLUT, calibration_closure, hold_response,
                                   remove_offset, wire_centroids, wire_shape)
@@ -25,11 +23,6 @@ def grasp(src, indenter, depth, *, seed=0, **pose):
 def clean(opto5_clean):
     """A noise-free sensor (ADC quantisation only) and its normalisation (session fixture)."""
     return opto5_clean
-
-
-@pytest.mark.parametrize("module", [opto5, wire], ids=lambda m: m.__name__)
-def test_docstring_examples(module):
-    assert doctest.testmod(module, optionflags=doctest.ELLIPSIS).failed == 0
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint16])
