@@ -393,7 +393,7 @@ class Pipeline:
             return
         if self.baseline_dtype is not None and self.baseline_dtype.kind in "ui" \
                 and stack.dtype != self.baseline_dtype:
-            raise InputError(f"{name} are {stack.dtype} but the baseline is {self.baseline_dtype}: a "
+            raise InputError(f"{name}: dtype {stack.dtype}, but the baseline's is {self.baseline_dtype}: a "
                              f"baseline and frames of different bit depths cannot be subtracted; "
                              f"record them at one depth")
         depth = self.bits if self.bits is not None else self.readings_bits
@@ -404,16 +404,16 @@ class Pipeline:
             natural = np.dtype(np.uint8 if depth <= 8 else np.uint16)
             if stack.dtype.itemsize != natural.itemsize:
                 raise InputError(
-                    f"{name} are {stack.dtype} (up to {8 * stack.dtype.itemsize}-bit grey levels) but "
+                    f"{name}: dtype {stack.dtype} (up to {8 * stack.dtype.itemsize}-bit grey levels), but "
                     f"this pipeline reads {depth}-bit frames (full scale {top}), e.g. a calibration's "
                     f"scale; state the frames' bit depth (bits=..., --bits N: 16 for 16-bit data, 12 "
                     f"for 12-bit data in 16-bit files) so that they are mapped exactly or refused")
         elif np.iinfo(stack.dtype).max < top:
-            raise InputError(f"{name} are {stack.dtype}, which cannot hold the stated {depth}-bit grey "
+            raise InputError(f"{name}: dtype {stack.dtype} cannot hold the stated {depth}-bit grey "
                              f"levels (full scale {top})")
         if np.iinfo(stack.dtype).max > top and stack.size and stack.max() > top:
             t, r, c = (int(i) for i in np.argwhere(stack > top)[0])
-            raise InputError(f"{name} hold {stack[t, r, c]} at frame {t}, pixel (row {r}, col {c}), "
+            raise InputError(f"{name}: {stack[t, r, c]} at frame {t}, pixel (row {r}, col {c}) is "
                              f"above the full scale {top} of {depth}-bit grey levels; state the "
                              f"frames' real bit depth")
 

@@ -308,10 +308,13 @@ def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
     (a smooth image cancels to second order). Its level ``m`` is the mean of
     the six pixels above and below (rows the residual does not use, so that
     sorting by ``m`` does not select the noise). Pixels are sorted by ``m``
-    into up to ``NOISE_BINS`` bins of equal counts; in each, the variance of ``r`` is the mean square
-    of the residuals within ``max(4 s, 1)`` of their median (``s`` = 1.4826
-    times their median absolute deviation: edges and texture are left out,
-    and quantised frames keep their +-1 steps). Interpolated linearly in
+    into up to ``NOISE_BINS`` bins of equal counts; in each, the variance of
+    ``r`` is the mean square of the residuals within ``max(4 s, 2 q)`` of
+    their median (``s`` = 1.4826 times their median absolute deviation,
+    ``q`` the smallest non-zero deviation: edges and texture are left out,
+    and quantised frames keep their one-level steps whatever their scale,
+    so that frames times a constant give the noise times that constant).
+    Interpolated linearly in
     ``m`` (clamped at the ends), :math:`\sigma^2(m) = \tfrac23 \mathrm{var}(r)`,
     and a frame minus the baseline holds the noise of both:
     :math:`\sqrt{2 \sigma^2(m)}`.
@@ -342,7 +345,8 @@ def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
         res = r[chunk]
         med = np.median(res)
         dev = np.abs(res - med)
-        keep = dev <= max(4.0 * 1.4826 * float(np.median(dev)), 1.0)
+        step = dev[dev > 0]
+        keep = dev <= max(4.0 * 1.4826 * float(np.median(dev)), 2.0 * step.min() if step.size else 0.0)
         centres.append(float(np.median(m_in[chunk])))
         variances.append(float(np.mean((res[keep] - med) ** 2)))
     centres, variances = np.array(centres), np.array(variances)
