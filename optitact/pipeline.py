@@ -442,7 +442,8 @@ class Pipeline:
         stack, _ = check_frames(frames, camera, "frames")
         sigma = estimate_noise(stack) * math.sqrt(1.0 + 1.0 / stack.shape[0])
         if options.get("bits") is not None and options.get("readings_bits") is not None:
-            sigma /= dn_ratio(options["bits"], options["readings_bits"])  # noise_sigma is in the readings' levels
+            # noise_sigma is in the readings' grey levels
+            sigma /= dn_ratio(options["bits"], options["readings_bits"])
         return cls(sensor, camera, baseline=stack, noise_sigma=sigma, **options)
 
     # ------------------------------------------------------------------ processing

@@ -110,7 +110,8 @@ def test_values_above_the_stated_depth_are_refused():
     pipe = Pipeline(SENSOR, SMALL, bits=12)
     frame = np.zeros(SMALL.shape, np.uint16)
     frame[7, 9] = 5000
-    with pytest.raises(InputError, match=r"5000 at frame 0, pixel \(row 7, col 9\) is above the full scale 4095"):
+    with pytest.raises(InputError, match=r"5000 at frame 0, pixel \(row 7, col 9\) is above the full scale 4095"
+                       ):
         pipe.process(frame)
     with pytest.raises(InputError, match="uint8 cannot hold the stated 12-bit"):
         pipe.process(np.zeros(SMALL.shape, np.uint8))
