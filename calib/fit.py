@@ -34,6 +34,16 @@ with all ``c >= 0``, so g increases with G; ``f_i(u) = d1 t + d3 t^3``
 bounded linear or non-linear least squares (SciPy) on scaled inputs.
 Outside the fitted range (G above the largest fitted G, |u| beyond the
 largest fitted shift) readings are clamped to the range and flagged.
+
+Intensity scale
+---------------
+G is in the grey levels of the frames the curves were fitted on, so a
+calibration records their :class:`~optitact.ccd.IntensityScale`: the bit
+depth (``intensity.bits``; the set's CCD when fitted from a calibration set,
+8 for files written before the field existed) and the exposure and gain the
+user states (default 1). :meth:`Calibration.pipeline` maps frames of another
+depth exactly (16-bit frames that widen 8-bit ones, x 257) or refuses them,
+and refuses another exposure or gain.
 """
 
 from __future__ import annotations
@@ -48,6 +58,7 @@ import numpy as np
 
 from optitact.camera import FisheyeCamera
 from optitact._validate import check_keys, check_type
+from optitact.ccd import IntensityScale
 from optitact.errors import InputError, ShapeError
 from optitact.io import atomic_write_text, json_fingerprint
 from optitact.readings import Readings
@@ -74,12 +85,20 @@ class CalibrationMismatchError(InputError):
     """A calibration was made for another sensor, camera or pipeline."""
 
 
-def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict) -> str:
-    """Short hash of the sensor, camera and pipeline options a calibration belongs to."""
+def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict,
+                intensity: IntensityScale | None = None) -> str:
+    """Short hash of the sensor, camera, pipeline options and intensity scale a calibration belongs to.
+
+    The default scale (8-bit, exposure 1, gain 1) is left out of the hash, so
+    that calibrations written before the scale was recorded keep their
+    fingerprint.
+    """
     check_type(sensor, DomeSensor, "sensor")
     check_type(camera, FisheyeCamera, "camera")
-    return json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
-                             "pipeline": _plain(pipeline_options)}, 16)
+    doc = {"sensor": sensor.to_dict(), "camera": camera.to_dict(), "pipeline": _plain(pipeline_options)}
+    if intensity is not None and check_type(intensity, IntensityScale, "intensity") != IntensityScale():
+        doc["intensity"] = intensity.to_dict()
+    return json_fingerprint(doc, 16)
 
 
 def _plain(options: dict) -> dict:
@@ -142,6 +161,9 @@ class Calibration:
         -> (E,) samples per element.
     provenance : dict
         Where the samples came from.
+    intensity : IntensityScale
+        The grey-level scale of the frames the readings came from (default
+        8-bit, exposure 1, gain 1).
     """
 
     model: str
@@ -157,17 +179,31 @@ class Calibration:
     gu: np.ndarray
     residuals: dict = field(default_factory=dict)
     provenance: dict = field(default_factory=dict)
+    intensity: IntensityScale = field(default_factory=IntensityScale)
+
+    def __post_init__(self) -> None:
+        check_type(self.intensity, IntensityScale, "intensity")
 
     @property
     def fingerprint(self) -> str:
-        """Hash of the sensor, camera and pipeline options (see :func:`fingerprint`)."""
-        return fingerprint(self.sensor, self.camera, self.pipeline_options)
+        """Hash of the sensor, camera, pipeline options and intensity scale (see :func:`fingerprint`)."""
+        return fingerprint(self.sensor, self.camera, self.pipeline_options, self.intensity)
+
+    def __repr__(self) -> str:
+        cam = self.camera
+        res = ", ".join(f"{k} {np.median(self.residuals[k]):.3g}/{np.max(self.residuals[k]):.3g}"
+                        for k in ("fx", "fy", "fz") if np.size(self.residuals.get(k, [])))
+        return (f"<Calibration {self.model!r}: {len(self.g)} elements, {cam.width}x{cam.height} frames, "
+                f"{self.intensity}, fingerprint {self.fingerprint}; fit residuals (N, median/max): "
+                f"{res or 'none recorded'}>")
+
+    __str__ = __repr__
 
     # ------------------------------------------------------------------ fitting
     @classmethod
     def fit(cls, readings: Readings, forces, *, sensor: DomeSensor, camera: FisheyeCamera,
             pipeline_options: dict | None = None, model: str = "coupled",
-            provenance: dict | None = None) -> Calibration:
+            provenance: dict | None = None, intensity: IntensityScale | None = None) -> Calibration:
         """Fit the curves to readings and the true (measured) forces that made them.
 
         Parameters
@@ -183,6 +219,10 @@ class Calibration:
         model : {"ohka", "coupled"}
         provenance : dict, optional
             Stored as is (e.g. the set's path and seed).
+        intensity : IntensityScale, optional
+            The grey-level scale of the frames the readings came from
+            (default: 8-bit, exposure 1, gain 1). State it for frames of
+            another depth, e.g. ``IntensityScale(bits=12)``.
 
         Raises
         ------
@@ -199,6 +239,8 @@ class Calibration:
         """
         from scipy.optimize import least_squares, lsq_linear
 
+        intensity = IntensityScale() if intensity is None else check_type(intensity, IntensityScale,
+                                                                          "intensity")
         if model not in MODELS:
             raise InputError(f"model must be one of {MODELS}, got {model!r}")
         if not isinstance(readings, Readings) or not readings.is_stack:
@@ -290,14 +332,48 @@ class Calibration:
             res["n"][e] = len(G)
         return cls(model, sensor, camera, _resolved(sensor, camera, pipeline_options or {}),
                    g_c, g_scale, f_c,
-                   u_scale, g_max, u_max, gu, res, dict(provenance or {}))
+                   u_scale, g_max, u_max, gu, res, dict(provenance or {}), intensity)
 
     # ------------------------------------------------------------------ applying
-    def pipeline(self, *, baseline=None, method: str = "fast"):
-        """The :class:`optitact.Pipeline` these curves expect (same sensor, camera, options)."""
+    def pipeline(self, *, baseline=None, method: str = "fast", bits: int | None = None,
+                 exposure: float | None = None, gain: float | None = None):
+        """The :class:`optitact.Pipeline` these curves expect (same sensor, camera, options, scale).
+
+        Parameters
+        ----------
+        baseline : array_like, optional
+            No-load frame(s), see :class:`optitact.Pipeline`.
+        method : {"fast", "reference"}
+        bits : int, optional
+            Bit depth of the frames (e.g. 16, or 12 for 12-bit data in
+            ``uint16`` files). Default: the calibration's; then integer
+            frames must be of the dtype that holds it (``uint8`` for 8 bits),
+            and ``uint16`` frames for an 8-bit calibration are refused until
+            ``bits`` says what they hold. Frames of another depth are mapped
+            onto the calibration's exactly (16-bit frames of an 8-bit
+            calibration are read as ``frame / 257``) or refused.
+        exposure, gain : float, optional
+            The frames' exposure and gain, in the units the calibration's
+            ``intensity`` states; default the calibration's. Others are
+            refused.
+
+        Raises
+        ------
+        InputError
+            Frames of a depth, exposure or gain that cannot be mapped onto
+            the calibration's exactly; the message names both scales.
+        """
         from optitact.pipeline import Pipeline
 
-        return Pipeline(self.sensor, self.camera, baseline=baseline, method=method,
+        scale = self.intensity
+        for name, value in (("exposure", exposure), ("gain", gain)):
+            if value is not None and IntensityScale(**{name: value}).to_dict()[name] != getattr(scale, name):
+                raise InputError(
+                    f"the frames' {name} {value:g} is not the calibration's ({scale}): the camera's "
+                    f"response at another {name} (offset, noise, saturation) is not known; record the "
+                    f"frames at {name} {getattr(scale, name):g} or calibrate at {value:g}")
+        return Pipeline(self.sensor, self.camera, baseline=baseline, method=method, bits=bits,
+                        readings_bits=scale.bits,
                         **{k: v for k, v in self.pipeline_options.items() if k != "method"})
 
     def check(self, sensor: DomeSensor | None = None, camera: FisheyeCamera | None = None) -> None:
@@ -377,16 +453,28 @@ class Calibration:
             },
             "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
             "provenance": self.provenance,
+            "intensity": self.intensity.to_dict(),
         }
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the calibration as JSON, atomically.
 
         The file holds the schema version, model, per-element parameters,
-        fitted ranges, residuals, and the sensor, camera and pipeline with
-        their fingerprint.
+        fitted ranges, residuals, the frames' intensity scale, and the
+        sensor, camera and pipeline with their fingerprint.
+
+        Raises
+        ------
+        InputError
+            A value is not finite (NaN or infinity are not JSON, and
+            :meth:`load` refuses them); nothing is written.
         """
-        return atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
+        try:
+            text = json.dumps(self.to_dict(), indent=1, allow_nan=False)
+        except ValueError as exc:
+            raise InputError(f"cannot save this calibration to {path}: a value is not finite ({exc}); "
+                             f"JSON holds finite numbers only") from None
+        return atomic_write_text(path, text + "\n")
 
     @classmethod
     def from_dict(cls, d) -> Calibration:
@@ -432,12 +520,12 @@ class Calibration:
             if not isinstance(d.get(key, {}), dict):
                 raise InputError(f"calibration {key!r} must be an object, got "
                                  f"{type(d[key]).__name__}")
-        residuals = {}
-        for key, value in d.get("residuals_n", {}).items():
-            try:
-                residuals[key] = np.array(value, dtype=np.float64)
-            except (TypeError, ValueError, ArithmeticError):
-                raise InputError(f"calibration residuals_n[{key!r}] must hold numbers") from None
+        residuals = {key: _numbers(value, f"calibration residuals_n[{key!r}]")
+                     for key, value in d.get("residuals_n", {}).items()}
+        try:
+            intensity = IntensityScale.from_dict(d.get("intensity", {}))
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"calibration 'intensity' is not a valid intensity scale: {exc}") from None
         n = sensor.n_elements
         el = d["elements"]
         if not isinstance(el, dict):
@@ -446,22 +534,17 @@ class Calibration:
         def arr(name, shape):
             if name not in el:
                 raise InputError(f"calibration elements are missing {name!r}")
-            try:
-                a = np.array(el[name], dtype=np.float64)
-            except (TypeError, ValueError, ArithmeticError):  # ints beyond float64 overflow
-                raise InputError(f"calibration elements[{name!r}] must hold numbers") from None
+            a = _numbers(el[name], f"calibration elements[{name!r}]")
             if a.shape != shape:
                 raise InputError(f"calibration elements[{name!r}] must have shape {shape}, "
                                  f"got {a.shape}")
-            if not np.isfinite(a).all():
-                raise InputError(f"calibration elements[{name!r}] must be finite")
             a.flags.writeable = False
             return a
 
         cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, _G_TERMS)),
                   arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
                   arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
-                  residuals, dict(d.get("provenance", {})))
+                  residuals, dict(d.get("provenance", {})), intensity)
         if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
             raise InputError("calibration scales must be > 0")
         if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
@@ -499,14 +582,21 @@ class Calibration:
         Raises
         ------
         FileNotFoundError
+            Nothing at ``path``.
         InputError
-            Oversized, not JSON, wrong schema or version, malformed fields.
+            ``path`` is a folder or not a regular file (a FIFO, a device),
+            oversized, not JSON, wrong schema or version, malformed fields.
         CalibrationMismatchError
             ``sensor``/``camera`` given and not the calibration's.
         """
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise FileNotFoundError(f"calibration file not found: {path}")
+        if path.is_dir():
+            raise InputError(f"{path} is a folder, expected a calibration JSON file")
+        if not path.is_file():
+            raise InputError(f"{path} is not a regular file (a FIFO, socket or device?), expected a "
+                             f"calibration JSON file")
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:
             raise InputError(f"{path}: {size} bytes is too large for a calibration "
@@ -525,6 +615,30 @@ class Calibration:
         cal = cls.from_dict(d)
         cal.check(sensor, camera)
         return cal
+
+
+def _numbers(value, what: str) -> np.ndarray:
+    """A nested list of JSON numbers as a float64 array; InputError naming ``what`` otherwise.
+
+    Strings ("0.99"), booleans, nulls and objects are refused (NumPy would
+    convert the first two), and so are values that are not finite in float64
+    (1e309 parses as infinity; integers beyond float64 overflow).
+    """
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise InputError(f"{what} must hold numbers, got {item!r} ({type(item).__name__})")
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, ArithmeticError):  # ragged lists; ints beyond float64 overflow
+        raise InputError(f"{what} must be a regular array of numbers within float64") from None
+    if not np.isfinite(a).all():
+        raise InputError(f"{what} must be finite, got {a[~np.isfinite(a)].flat[0]} (JSON numbers beyond "
+                         f"float64, such as 1e309, read as infinity)")
+    return a
 
 
 def _refuse_constant(name: str):
@@ -564,4 +678,5 @@ def fit(calibration_set, *, model: str = "coupled") -> Calibration:
                            pipeline_options=cs.attrs.get("pipeline", {}), model=model,
                            provenance={"set": str(cs.path), "frames": int(cs.done.sum()),
                                        "seed": cs.attrs["seed"], "spp": cs.attrs["spp"],
-                                       "design": cs.attrs["design"]})
+                                       "design": cs.attrs["design"]},
+                           intensity=IntensityScale(bits=cs.ccd.bits))

@@ -3,7 +3,9 @@
 The model turns a float radiance image ``(H, W)`` or a stack ``(T, H, W)``
 into the unsigned-integer frame a camera would record: photon shot noise,
 full-well saturation, Gaussian read noise, a dark offset, analogue-to-digital
-gain and quantisation to ``bits`` bits.
+gain and quantisation to ``bits`` bits. :class:`IntensityScale` names the
+grey-level scale frames are in (bit depth, and the exposure and gain a user
+states), so that a calibration can tell frames of another scale.
 """
 
 from __future__ import annotations
@@ -17,9 +19,11 @@ import numpy as np
 from ._validate import check_keys, finite, integer, positive, real_array, seed_value
 from .errors import InputError, ShapeError
 
-__all__ = ["CCD"]
+__all__ = ["CCD", "IntensityScale", "dn_ratio"]
 
 _BITS = (8, 10, 12, 16)
+#: Bit depths a frame's grey levels may be stated in (integer frames up to uint16).
+MAX_FRAME_BITS = 16
 #: Largest full well (electrons): numpy's Poisson sampler takes means up to about 9e18, and
 #: :meth:`CCD.expose` draws at most ``2 full_well + 1000``.
 MAX_FULL_WELL = 1e18
@@ -417,3 +421,97 @@ class CCD:
             where = tuple(int(i) for i in np.unravel_index(np.argmin(arr), arr.shape))
             raise InputError(f"radiance must be >= 0, got minimum {low!r} at index {where}")
         return arr
+
+
+# ---------------------------------------------------------------------------- intensity scale
+def _frame_bits(value, name: str) -> int:
+    bits = integer(value, name)
+    if not 1 <= bits <= MAX_FRAME_BITS:
+        raise InputError(f"{name} must be a bit depth from 1 to {MAX_FRAME_BITS}, got {bits}")
+    return bits
+
+
+@dataclass(frozen=True)
+class IntensityScale:
+    """The grey-level scale of a camera's frames: bit depth, and the exposure and gain stated.
+
+    Parameters
+    ----------
+    bits : int, default 8
+        Bit depth of the frames' grey levels (1 to 16): they run from 0 to
+        the full scale ``2**bits - 1``. 12-bit data stored in ``uint16``
+        files is 12 here, not 16.
+    exposure, gain : float, default 1.0
+        The exposure and gain the frames were taken at, in the user's own
+        units (e.g. milliseconds, a linear gain factor); finite and > 0. optitact
+        only compares them: frames at another exposure or gain than a
+        calibration's are refused, since the camera's response to them
+        (offset, noise, saturation) is not known.
+
+    Examples
+    --------
+    >>> IntensityScale(bits=12).full_scale
+    4095
+    >>> str(IntensityScale())
+    '8-bit (full scale 255), exposure 1, gain 1'
+    """
+
+    bits: int = 8
+    exposure: float = 1.0
+    gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "bits", _frame_bits(self.bits, "bits"))
+        object.__setattr__(self, "exposure", positive(self.exposure, "exposure"))
+        object.__setattr__(self, "gain", positive(self.gain, "gain"))
+
+    @property
+    def full_scale(self) -> int:
+        """The largest grey level, ``2**bits - 1``."""
+        return 2**self.bits - 1
+
+    def __str__(self) -> str:
+        return (f"{self.bits}-bit (full scale {self.full_scale}), exposure {self.exposure:g}, "
+                f"gain {self.gain:g}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-friendly dict."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> IntensityScale:
+        """Build from :meth:`to_dict` output; missing fields take their defaults."""
+        return cls(**check_keys(d, [f.name for f in fields(cls)], "intensity scale", noun="field"))
+
+
+def dn_ratio(frame_bits: int, readings_bits: int) -> float:
+    """Grey levels of ``frame_bits``-bit frames per grey level of ``readings_bits``-bit ones.
+
+    The ratio of the full scales, ``(2**frame_bits - 1) / (2**readings_bits - 1)``,
+    accepted only when one full scale is a whole multiple of the other: 1 for
+    equal depths, 257 for 16-bit frames of an 8-bit scale (``65535 = 257 x
+    255``, how 8-bit images are widened to 16 bits) and 1/257 the other way.
+    Any other pair (12-bit frames for 8-bit readings: 4095 / 255 = 16.06)
+    depends on how the camera's ADC maps its charge and is refused.
+
+    Raises
+    ------
+    InputError
+        When the two full scales are not whole multiples of each other; the
+        message names both.
+
+    Examples
+    --------
+    >>> dn_ratio(16, 8), dn_ratio(12, 12)
+    (257.0, 1.0)
+    """
+    hi, lo = 2**_frame_bits(frame_bits, "frame bits") - 1, 2**_frame_bits(readings_bits, "bits") - 1
+    if hi % lo == 0:
+        return float(hi // lo)
+    if lo % hi == 0:
+        return 1.0 / (lo // hi)
+    raise InputError(
+        f"{frame_bits}-bit frames (full scale {hi}) cannot be mapped exactly onto the {readings_bits}-bit "
+        f"scale (full scale {lo}) the readings must be in: their ratio {hi / lo:.4g} is not a whole "
+        f"number, and how the camera's ADC maps charge at either depth is not known. Use frames of "
+        f"{readings_bits} bits, or a calibration made for {frame_bits}-bit frames")

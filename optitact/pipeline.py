@@ -41,6 +41,7 @@ import numpy as np
 
 from ._validate import integer, positive
 from .camera import FisheyeCamera
+from .ccd import _frame_bits, dn_ratio
 from .errors import InputError
 from .readings import Readings
 from .regions import (
@@ -68,6 +69,7 @@ from .steps import (
     denoise,
     estimate_noise,
     filter_radius,
+    noise_from_one_frame,
     readings_from_moments,
     subtract_baseline,
 )
@@ -93,6 +95,7 @@ __all__ = [
     "estimate_noise",
     "filter_radius",
     "integrate",
+    "noise_from_one_frame",
     "readings_from_moments",
     "region_weights",
     "split_regions",
@@ -189,13 +192,31 @@ class Pipeline:
         maximum (255, 65535), none for float frames.
     radius, grid_mm : float, optional
         Region radius and dewarp cell size (mm); see :func:`split_regions`.
+    bits : int, optional
+        Bit depth of the frames' grey levels (1 to 16), e.g. 12 for 12-bit
+        data in ``uint16`` frames. When given, integer frames (and the
+        baseline) must fit it: a dtype too small for it, or a value above
+        ``2**bits - 1``, is an error. Default: ``readings_bits``, else not
+        checked.
+    readings_bits : int, optional
+        Bit depth whose grey levels the readings' G, ``noise_sigma`` and
+        ``saturation`` are in (a calibration's, see
+        :meth:`optitact.calib.Calibration.pipeline`). Frames of ``bits`` are
+        mapped onto it exactly, by the ratio of the full scales (see
+        :func:`optitact.ccd.dn_ratio`: 16-bit frames of an 8-bit scale are
+        read as ``frame / 257``), or refused. Without ``bits``, integer
+        frames must be of the dtype that holds ``readings_bits`` (``uint8``
+        up to 8 bits, ``uint16`` above): ``uint16`` frames for an 8-bit
+        scale may hold 12- or 16-bit data and are refused until ``bits``
+        says which.
 
     Raises
     ------
     TypeError, InputError, ShapeError
         For a wrong kind or value of an option or of the baseline (see
         :func:`check_frames`); also when ``k * noise_sigma`` or the noise
-        floor would overflow float64.
+        floor would overflow float64, and when the frames' ``bits`` cannot
+        be mapped exactly onto ``readings_bits``.
 
     Notes
     -----
@@ -236,7 +257,8 @@ class Pipeline:
                  baseline=None, filter: str = "none", filter_size: float | None = None,
                  noise_sigma: float = 0.5, k: float = 3.0, min_pixels: float = 3.0,
                  saturation: float | None = None, radius: float | None = None,
-                 grid_mm: float | None = None) -> None:
+                 grid_mm: float | None = None, bits: int | None = None,
+                 readings_bits: int | None = None) -> None:
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
         if not isinstance(camera, FisheyeCamera):
@@ -259,20 +281,31 @@ class Pipeline:
         self.k = positive(k, "k", allow_zero=True)
         self.min_pixels = positive(min_pixels, "min_pixels", allow_zero=True)
         self.saturation = None if saturation is None else positive(saturation, "saturation")
+        self.bits = None if bits is None else _frame_bits(bits, "bits")
+        self.readings_bits = None if readings_bits is None else _frame_bits(readings_bits, "readings_bits")
+        #: Grey levels of the frames per grey level of the readings (1 unless ``bits`` and
+        #: ``readings_bits`` differ): thresholds and the noise floor are in the frames' levels,
+        #: the readings' G is divided by it.
+        self.dn_ratio = 1.0 if self.bits is None or self.readings_bits is None \
+            else dn_ratio(self.bits, self.readings_bits)
+        self._frame_saturation = None if self.saturation is None else self.saturation * self.dn_ratio
         # A separable Gaussian k (x) k scales white noise by its L2 norm, sum(k**2), and
         # correlates it over 1 / sum(k**2)**2 pixels (4 pi sigma^2).
         gain = float(np.sum(_gaussian_kernel(filter_size) ** 2)) if filter == "gaussian" else 1.0
         #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is
         #: dark: ``k * noise_sigma`` (times the filter's noise gain); see ``threshold_map``.
-        self.threshold = self.k * self.noise_sigma * gain
+        self.threshold = self.k * self.noise_sigma * self.dn_ratio * gain
         if not math.isfinite(self.threshold):
             raise InputError(f"k * noise_sigma must be finite, got k={self.k!r}, "
                              f"noise_sigma={self.noise_sigma!r}")
         self._baseline_input = baseline
+        #: dtype of the baseline as given (frames of another integer dtype are refused).
+        self.baseline_dtype = None
+        self._one_frame = False
         self.baseline, self.noise_map = (None, None) if baseline is None \
             else self._check_baseline(baseline)
-        #: Per-pixel threshold (H, W) when the baseline is a stack: ``max(threshold, k *
-        #: noise_map * gain)``; None otherwise.
+        #: Per-pixel threshold (H, W) when there is a baseline whose noise could be measured:
+        #: ``max(threshold, k * noise_map * gain)``; None otherwise.
         if self.noise_map is None:
             self.threshold_map = None
         else:
@@ -281,6 +314,8 @@ class Pipeline:
             if not np.isfinite(self.threshold_map).all():
                 raise InputError(f"k * the baseline's noise must be finite, got k={self.k!r} and a "
                                  f"noise of up to {self.noise_map.max():g} grey levels")
+            if self._one_frame and not np.any(self.threshold_map > self.threshold):
+                self.threshold_map = None  # the estimate raises no pixel: one threshold everywhere
         self._geometry = dict(radius=radius, grid_mm=grid_mm)  # as given: replace() hits the cache
         self.grids = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
         #: Per-(element, pixel) weights of the regions (:func:`~optitact.regions.region_weights`).
@@ -311,22 +346,32 @@ class Pipeline:
 
     # ------------------------------------------------------------------ set-up
     def _check_baseline(self, baseline) -> tuple[np.ndarray, np.ndarray | None]:
-        """The baseline's mean and, for a stack of two or more frames, its per-pixel noise.
+        """The baseline's mean and its per-pixel noise (grey levels of ``frame - baseline``).
 
-        The noise map is the temporal standard deviation of the no-load frames,
-        made conservative where it is estimated from few frames (the variance is
-        taken as the largest in each 3 x 3 neighbourhood, then smoothed with a
-        Gaussian of 1 pixel), times ``sqrt(1 + 1/T)`` for the noise of the mean.
+        From two frames on, the noise map is the temporal standard deviation
+        of the no-load frames, made conservative where it is estimated from
+        few frames (the variance is taken as the largest in each 3 x 3
+        neighbourhood, then smoothed with a Gaussian of 1 pixel), times
+        ``sqrt(1 + 1/T)`` for the noise of the mean. One frame holds no
+        temporal noise: :func:`noise_from_one_frame` estimates it from the
+        frame's spatial fluctuations, as a function of its grey level (None,
+        with a warning, when it cannot tell).
         """
         import cv2
         from scipy.ndimage import maximum_filter
 
         stack, _ = check_frames(baseline, self.camera, "baseline")
+        self._check_scale(stack, "baseline")
+        self.baseline_dtype = stack.dtype
         frames = stack.astype(np.float64)
         b = _mean0(frames)
         b.flags.writeable = False
         if len(frames) < 2:
-            return b, None
+            self._one_frame = True
+            noise = noise_from_one_frame(frames[0], stacklevel=5)
+            if noise is not None:
+                noise.flags.writeable = False
+            return b, noise
         var = maximum_filter(_var0(frames), size=3, mode="nearest")
         var = cv2.GaussianBlur(var, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT_101)
         noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
@@ -336,7 +381,41 @@ class Pipeline:
     def _options(self) -> dict:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
                     noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
-                    saturation=self.saturation, **self._geometry)
+                    saturation=self.saturation, bits=self.bits, readings_bits=self.readings_bits,
+                    **self._geometry)
+
+    def _check_scale(self, stack: np.ndarray, name: str) -> None:
+        """InputError when integer frames are not of the pipeline's bit depth or the baseline's dtype.
+
+        Float frames are taken to be in the frames' grey levels as they are.
+        """
+        if stack.dtype.kind not in "ui":
+            return
+        if self.baseline_dtype is not None and self.baseline_dtype.kind in "ui" \
+                and stack.dtype != self.baseline_dtype:
+            raise InputError(f"{name}: dtype {stack.dtype}, but the baseline's is {self.baseline_dtype}: a "
+                             f"baseline and frames of different bit depths cannot be subtracted; "
+                             f"record them at one depth")
+        depth = self.bits if self.bits is not None else self.readings_bits
+        if depth is None:
+            return
+        top = 2**depth - 1
+        if self.bits is None:  # implied by the readings' scale: the dtype must be the one that holds it
+            natural = np.dtype(np.uint8 if depth <= 8 else np.uint16)
+            if stack.dtype.itemsize != natural.itemsize:
+                raise InputError(
+                    f"{name}: dtype {stack.dtype} (up to {8 * stack.dtype.itemsize}-bit grey levels), but "
+                    f"this pipeline reads {depth}-bit frames (full scale {top}), e.g. a calibration's "
+                    f"scale; state the frames' bit depth (bits=..., --bits N: 16 for 16-bit data, 12 "
+                    f"for 12-bit data in 16-bit files) so that they are mapped exactly or refused")
+        elif np.iinfo(stack.dtype).max < top:
+            raise InputError(f"{name}: dtype {stack.dtype} cannot hold the stated {depth}-bit grey "
+                             f"levels (full scale {top})")
+        if np.iinfo(stack.dtype).max > top and stack.size and stack.max() > top:
+            t, r, c = (int(i) for i in np.argwhere(stack > top)[0])
+            raise InputError(f"{name}: {stack[t, r, c]} at frame {t}, pixel (row {r}, col {c}) is "
+                             f"above the full scale {top} of {depth}-bit grey levels; state the "
+                             f"frames' real bit depth")
 
     def replace(self, **changes) -> Pipeline:
         """A pipeline with some options changed (the geometry is shared when unchanged).
@@ -362,6 +441,9 @@ class Pipeline:
         """
         stack, _ = check_frames(frames, camera, "frames")
         sigma = estimate_noise(stack) * math.sqrt(1.0 + 1.0 / stack.shape[0])
+        if options.get("bits") is not None and options.get("readings_bits") is not None:
+            # noise_sigma is in the readings' grey levels
+            sigma /= dn_ratio(options["bits"], options["readings_bits"])
         return cls(sensor, camera, baseline=stack, noise_sigma=sigma, **options)
 
     # ------------------------------------------------------------------ processing
@@ -371,9 +453,18 @@ class Pipeline:
         Raises
         ------
         TypeError, ShapeError, InputError
-            See :func:`check_frames`.
+            See :func:`check_frames`; also (InputError) integer frames of
+            another dtype than the baseline, or not of the pipeline's bit
+            depth (see ``bits`` and ``readings_bits``).
         """
         stack, single = check_frames(frames, self.camera)
+        self._check_scale(stack, "frames")
+        out = self._process(stack, single)
+        if self.dn_ratio != 1.0:
+            out = Readings(out.G / self.dn_ratio, out.u, out.contact, out.saturated)
+        return out
+
+    def _process(self, stack: np.ndarray, single: bool) -> Readings:
         if self.method == "reference":
             out = Readings.stack([self._reference(f) for f in stack])
         elif single:
@@ -412,7 +503,7 @@ class Pipeline:
         g, _ = integrate(dewarp(img, self.grids), self.grids)
         # the centroid weighs each lit value by its height above the threshold
         w, m = integrate(dewarp(np.where(img > thr, img - thr, 0.0), self.grids), self.grids)
-        level = _saturation_level(frame.dtype, self.saturation)
+        level = _saturation_level(frame.dtype, self._frame_saturation)
         hot = dewarp((frame >= level).astype(np.float64), self.grids)
         return readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor, weight=w)
 
@@ -432,7 +523,7 @@ class Pipeline:
         key = dtype.str
         if key not in self._levels:
             b, thr = self.entry_baseline, self.entry_threshold
-            sat = _saturation_level(dtype, self.saturation)
+            sat = _saturation_level(dtype, self._frame_saturation)
             if dtype.kind in "ui":
                 top = np.iinfo(dtype).max
                 # The largest n with n - b <= threshold in float64, as the reference
@@ -515,7 +606,7 @@ class Pipeline:
         c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, w)
         local = (rows - r0) * (c1 - c0) + cols - c0
         base = None if self.baseline is None else self.baseline[r0:r1, c0:c1]
-        sat = _saturation_level(flat.dtype, self.saturation)
+        sat = _saturation_level(flat.dtype, self._frame_saturation)
         idx, v, hot = [], [], []
         for i, frame in enumerate(flat):
             crop = frame.reshape(h, w)[r0:r1, c0:c1]

@@ -23,6 +23,13 @@ from .errors import InputError
 
 __all__ = ["DomeSensor"]
 
+#: The sensor's lengths (mm) and their accepted range: 1 nm to 10 m keeps every derived
+#: quantity (areas, pitches, the camera's maps) finite in float64.
+LENGTHS_MM = ("outer_radius", "shell_thickness", "column_diameter", "lever_arm", "cone_circle_radius",
+              "cone_base_radius")
+MIN_LENGTH_MM = 1e-6
+MAX_LENGTH_MM = 1e4
+
 
 def _frozen(arr: np.ndarray) -> np.ndarray:
     arr.setflags(write=False)
@@ -34,6 +41,8 @@ class DomeSensor:
     """Geometry and materials of the hemispherical optical tactile sensor.
 
     All lengths in mm, forces in N, moduli in MPa (= N/mm^2), angles in degrees.
+    Every length lies between ``MIN_LENGTH_MM`` (1e-6) and ``MAX_LENGTH_MM``
+    (1e4); beyond them the derived geometry leaves float64.
 
     Parameters
     ----------
@@ -101,6 +110,11 @@ class DomeSensor:
                      "lever_arm", "cone_circle_radius", "cone_apex_deg", "cone_base_radius",
                      "youngs_modulus"):
             object.__setattr__(self, name, positive(getattr(self, name), name))
+        for name in LENGTHS_MM:  # the geometry's trigonometry and areas stay within float64
+            value = getattr(self, name)
+            if not MIN_LENGTH_MM <= value <= MAX_LENGTH_MM:
+                raise InputError(f"{name} must be a length from {MIN_LENGTH_MM:g} to {MAX_LENGTH_MM:g} mm, "
+                                 f"got {value!r}")
         object.__setattr__(self, "preload", positive(self.preload, "preload", allow_zero=True))
         object.__setattr__(self, "poisson_ratio",
                            positive(self.poisson_ratio, "poisson_ratio", allow_zero=True))

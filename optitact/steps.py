@@ -5,7 +5,8 @@
 steps 1-3 of :mod:`optitact.pipeline`; :func:`readings_from_moments` turns a
 region's sums into :class:`~optitact.readings.Readings`;
 :func:`estimate_noise` measures a camera's temporal noise from a no-load
-stack. :class:`optitact.Pipeline` runs them (its ``"reference"`` method in
+stack, and :func:`noise_from_one_frame` the noise of a single no-load
+frame. :class:`optitact.Pipeline` runs them (its ``"reference"`` method in
 turn, its ``"fast"`` method folded into per-pixel weights).
 
 Convention
@@ -17,6 +18,7 @@ levels are the frame's own units (DN for camera frames).
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -26,7 +28,7 @@ from .errors import InputError, KindError, ShapeError
 from .readings import Readings
 
 __all__ = ["FILTERS", "G_MIN", "MAX_GREY", "apply_threshold", "check_frames", "denoise", "estimate_noise",
-           "filter_radius", "readings_from_moments", "subtract_baseline"]
+           "filter_radius", "noise_from_one_frame", "readings_from_moments", "subtract_baseline"]
 
 FILTERS = ("none", "gaussian", "median")
 #: moments) and the squares in the noise estimates then stay far inside float64's range.
@@ -34,6 +36,10 @@ MAX_GREY = 1e100
 #: Smallest G (grey level x mm^2) that can read as contact: below it the sums are made of
 #: subnormal numbers, whose rounding would make the centroid meaningless.
 G_MIN = 1e-250
+#: Fewest interior pixels from which :func:`noise_from_one_frame` estimates a frame's noise.
+MIN_NOISE_PIXELS = 1000
+#: Grey-level bins of :func:`noise_from_one_frame` (at most; each holds >= MIN_NOISE_PIXELS / 4).
+NOISE_BINS = 16
 
 
 # ---------------------------------------------------------------------------- input checks
@@ -270,3 +276,84 @@ def estimate_noise(frames) -> float:
                          f"{np.abs(arr).max()}")
     var = _var0(arr.astype(np.float64))
     return float(np.sqrt(var.mean())) if var.size else 0.0
+
+
+def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
+    r"""Per-pixel noise (grey levels, rms) of ``frame - baseline`` for a one-frame no-load baseline.
+
+    One frame holds no temporal noise; this measures its spatial
+    fluctuations instead, as a function of the grey level (photon noise
+    grows with it), assuming the no-load image is smooth on the scale of a
+    pixel and its noise white.
+
+    Parameters
+    ----------
+    frame : (H, W) array_like
+        The no-load frame (validated by the caller).
+    stacklevel : int
+        Of the warning, for callers that wrap this.
+
+    Returns
+    -------
+    (H, W) float64 ndarray or None
+        The noise of a frame minus this baseline at every pixel; None, with
+        a warning, when the frame has fewer than ``MIN_NOISE_PIXELS``
+        interior pixels to tell it from.
+
+    Notes
+    -----
+    The residual of each interior pixel from the mean of its left and right
+    neighbours, :math:`r = x - (x_l + x_r) / 2`, has variance
+    :math:`\tfrac32 \sigma^2` for white noise of variance :math:`\sigma^2`
+    (a smooth image cancels to second order). Its level ``m`` is the mean of
+    the six pixels above and below (rows the residual does not use, so that
+    sorting by ``m`` does not select the noise). Pixels are sorted by ``m``
+    into up to ``NOISE_BINS`` bins of equal counts; in each, the variance of
+    ``r`` is the mean square of the residuals within ``max(4 s, 2 q)`` of
+    their median (``s`` = 1.4826 times their median absolute deviation,
+    ``q`` the smallest non-zero deviation: edges and texture are left out,
+    and quantised frames keep their one-level steps whatever their scale,
+    so that frames times a constant give the noise times that constant).
+    Interpolated linearly in
+    ``m`` (clamped at the ends), :math:`\sigma^2(m) = \tfrac23 \mathrm{var}(r)`,
+    and a frame minus the baseline holds the noise of both:
+    :math:`\sqrt{2 \sigma^2(m)}`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> frame = np.random.default_rng(0).normal(50.0, 2.0, (120, 160))
+    >>> noise = noise_from_one_frame(frame)
+    >>> bool(abs(noise.mean() / (2.0 * np.sqrt(2.0)) - 1.0) < 0.05)
+    True
+    """
+    x = np.asarray(frame, dtype=np.float64)
+    h, w = x.shape
+    if (h - 2) * (w - 2) < MIN_NOISE_PIXELS:
+        warnings.warn(f"a one-frame baseline of {h}x{w} pixels is too small to estimate its noise from "
+                      f"(fewer than {MIN_NOISE_PIXELS} interior pixels): the threshold is noise_sigma "
+                      f"alone; average several no-load frames (a baseline stack) to measure the noise",
+                      UserWarning, stacklevel=stacklevel)
+        return None
+    r = (x[1:-1, 1:-1] - 0.5 * (x[1:-1, :-2] + x[1:-1, 2:])).ravel()
+    m_in = (x[:-2, :-2] + x[:-2, 1:-1] + x[:-2, 2:] + x[2:, :-2] + x[2:, 1:-1] + x[2:, 2:]) / 6.0
+    m_in = m_in.ravel()
+    order = np.argsort(m_in, kind="stable")
+    n_bins = max(1, min(NOISE_BINS, len(order) * 4 // MIN_NOISE_PIXELS))
+    centres, variances = [], []
+    for chunk in np.array_split(order, n_bins):
+        res = r[chunk]
+        med = np.median(res)
+        dev = np.abs(res - med)
+        step = dev[dev > 0]
+        keep = dev <= max(4.0 * 1.4826 * float(np.median(dev)), 2.0 * step.min() if step.size else 0.0)
+        centres.append(float(np.median(m_in[chunk])))
+        variances.append(float(np.mean((res[keep] - med) ** 2)))
+    centres, variances = np.array(centres), np.array(variances)
+    # equal centres (a frame with many pixels at one level): the larger variance, conservatively
+    xp, inv = np.unique(centres, return_inverse=True)
+    fp = np.zeros(len(xp))
+    np.maximum.at(fp, inv, variances)
+    level = np.pad(m_in.reshape(h - 2, w - 2), 1, mode="edge")
+    var = np.interp(level, xp, fp) * (2.0 / 3.0)
+    return np.sqrt(2.0 * var)

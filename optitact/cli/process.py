@@ -57,6 +57,11 @@ def add_parsers(sub) -> None:
                       help="noise of frame - baseline per pixel, grey levels (default 0.5)")
     proc.add_argument("--k", type=float, default=None,
                       help="threshold in noise sigmas (default 3)")
+    proc.add_argument("--bits", type=int_at_least(1, "a bit depth (1 to 16)"), default=None, metavar="N",
+                      help="bit depth of the frames' grey levels, e.g. 12 for 12-bit data in 16-bit "
+                           "files; needed for 16-bit files with a calibration made for 8-bit frames "
+                           "(16-bit frames of 8-bit ones are read as frame / 257, other depths are "
+                           "refused). Default: the calibration's, else not checked")
     proc.add_argument("--calibration", type=Path, default=None, metavar="CAL.json",
                       help="also estimate forces with this calibration (adds fx, fy, fz, clamped "
                            "columns); it fixes the sensor, camera and pipeline options. "
@@ -128,11 +133,11 @@ def run_process(args) -> int:
                 f"{cal.camera.width}x{cal.camera.height} frames, got "
                 f"{first[1].shape[1]}x{first[1].shape[0]}")
         camera = cal.camera
-        pipe = cal.pipeline(method=args.method)
+        pipe = cal.pipeline(method=args.method, bits=args.bits)
     elif args.plot is not None:
         raise InputError("--plot needs --calibration (it plots estimated forces)")
     else:
-        pipe = Pipeline(sensor, camera, method=args.method, **given)
+        pipe = Pipeline(sensor, camera, method=args.method, bits=args.bits, **given)
     n_base = 0 if baseline is not None else args.baseline_frames
     how = (f"baseline {args.baseline}" if baseline is not None else
            f"baseline = mean of the first {n_base} frame(s)" if n_base else "no baseline")
