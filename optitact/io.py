@@ -1,9 +1,14 @@
 """Reading and writing forces and frames.
 
-Forces CSV format: one row per element, in element order, with columns
-``fx, fy, fz`` (element-local, N) or ``element, fx, fy, fz``. A header row
-naming the columns is optional; blank lines and lines starting with ``#`` are
-ignored.
+Forces CSV format: columns ``fx, fy, fz`` (element-local, N) and optionally
+``element``. With a header row the columns are found by name, in any order,
+whatever their case and a unit in parentheses or brackets (``Fx (N)``); other
+columns are ignored. With an ``element`` column any subset of the elements may
+be listed, each at most once (the others are unloaded); without one, one row
+per element in element order. Without a header the columns are
+``fx, fy, fz`` or ``element, fx, fy, fz``. The delimiter is ``,``, ``;`` or tab
+(sniffed), a UTF-8 byte-order mark (Excel) is fine, and blank lines and lines
+starting with ``#`` are ignored.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -21,7 +27,8 @@ import numpy as np
 from .errors import InputError, ShapeError
 
 __all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
-           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy"]
+           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy",
+           "read_element_table", "csv_rows", "column_key"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -84,16 +91,72 @@ def json_fingerprint(obj, n: int = 16) -> str:
     return hashlib.sha256(key.encode()).hexdigest()[:n]
 
 
-def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
-    """Non-blank, non-comment rows of a CSV file as ``(line number, stripped cells)``."""
+#: Delimiters a CSV file may use (sniffed): comma, semicolon (Excel in many locales), tab.
+CSV_DELIMITERS = ",;\t"
+
+
+def column_key(name: str) -> str:
+    """A CSV header cell as a column name: case-folded, units in ``(...)``/``[...]`` and a BOM dropped.
+
+    Examples
+    --------
+    >>> column_key("\ufeffFx (N)"), column_key(" fz_global [N] "), column_key("Element")
+    ('fx', 'fz_global', 'element')
+    """
+    key = name.replace("\ufeff", "").strip()
+    key = re.sub(r"\s*[\(\[][^\)\]]*[\)\]]\s*$", "", key)
+    return key.strip().lower()
+
+
+def _delimiter_name(d: str) -> str:
+    return {",": "',' (comma)", ";": "';' (semicolon)", "\t": "tab"}.get(d, repr(d))
+
+
+def sniff_delimiter(lines: Sequence[str], path) -> str:
+    """The delimiter of CSV ``lines`` among :data:`CSV_DELIMITERS` (``csv.Sniffer``).
+
+    Lines holding none of them (a one-column file) read as comma-separated;
+    an InputError naming the candidates and the first line when the sniffer
+    cannot tell.
+    """
+    sample = "\n".join(lines[:50])
+    if not any(d in sample for d in CSV_DELIMITERS):
+        return ","
+    try:
+        return csv.Sniffer().sniff(sample, delimiters=CSV_DELIMITERS).delimiter
+    except csv.Error:
+        raise InputError(
+            f"{path}: cannot tell the delimiter of this CSV file (tried ',' (comma), ';' (semicolon) "
+            f"and tab; the columns must be separated by one of them on every line); its first line "
+            f"reads {lines[0][:80]!r}") from None
+
+
+def csv_rows(path: str | os.PathLike, delimiter: str | None = None) -> list[tuple[int, list[str]]]:
+    """Non-blank, non-comment rows of a CSV file as ``(line number, stripped cells)``.
+
+    The file is UTF-8, with or without a byte-order mark (Excel writes one);
+    ``delimiter`` None sniffs it among :data:`CSV_DELIMITERS`
+    (:func:`sniff_delimiter`). Lines whose first cell starts with ``#`` are
+    comments.
+    """
+    return _csv_rows(path, delimiter)[0]
+
+
+def _csv_rows(path, delimiter: str | None = None) -> tuple[list[tuple[int, list[str]]], str]:
+    """:func:`csv_rows` and the delimiter used."""
+    with Path(path).open(newline="", encoding="utf-8-sig") as fh:
+        text = fh.read()
+    lines = text.splitlines()
+    if delimiter is None:
+        content = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
+        delimiter = sniff_delimiter(content, path) if content else ","
     rows: list[tuple[int, list[str]]] = []
-    with Path(path).open(newline="") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            cells = [c.strip() for c in row]
-            if not any(cells) or cells[0].startswith("#"):
-                continue
-            rows.append((lineno, cells))
-    return rows
+    for lineno, row in enumerate(csv.reader(lines, delimiter=delimiter), start=1):
+        cells = [c.strip() for c in row]
+        if not any(cells) or cells[0].startswith("#"):
+            continue
+        rows.append((lineno, cells))
+    return rows, delimiter
 
 
 def csv_numbers(cells: Sequence[str], path, lineno: int, first_column: int = 1) -> list[float]:
@@ -110,15 +173,153 @@ def csv_numbers(cells: Sequence[str], path, lineno: int, first_column: int = 1) 
     return out
 
 
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+_FLAG_CELLS = {"0": False, "1": True, "false": False, "true": True}
+
+
+def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequence[str], *,
+                       optional: Sequence[str] = (), flags: Sequence[str] = (),
+                       headerless: bool = True, what: str = "forces") -> dict[str, np.ndarray]:
+    """Per-element columns of a CSV file, found by their header names.
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file: UTF-8 (a byte-order mark is fine), delimited by ``,``,
+        ``;`` or tab (sniffed), blank and ``#`` lines ignored.
+    n_elements : int
+        Elements of the sensor.
+    numbers : sequence of str
+        Required number columns (e.g. ``fx, fy, fz``).
+    optional : sequence of str
+        Number columns read when present.
+    flags : sequence of str
+        0/1 (or true/false) columns read when present.
+    headerless : bool
+        Allow a file without a header: its columns are then ``numbers`` or
+        ``element`` and ``numbers``, in that order.
+    what : str
+        What the file holds, for messages.
+
+    Returns
+    -------
+    dict of str to (n_elements,) ndarray
+        Every present column (float64, flags bool), in element order; with an
+        ``element`` column, elements without a row are 0 (flags False).
+
+    Notes
+    -----
+    Header cells match column names whatever their case, surrounding blanks
+    and a trailing unit in parentheses or brackets (``Fx (N)`` is ``fx``), in
+    any order; other columns are ignored. Without an ``element`` column there
+    is one row per element, in element order; with one, any subset of the
+    elements in any order (each at most once).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ShapeError
+        A missing column, a row of the wrong width, the wrong number of rows.
+    InputError
+        An unknown delimiter, a cell that is not a finite number or flag (the
+        message gives line and column), an element index that does not
+        exist or appears twice.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} file not found: {path}")
+    rows, delim = _csv_rows(path)
+    wanted = list(numbers)
+    if not rows:
+        raise ShapeError(f"{path}: expected {n_elements} rows of {', '.join(wanted)}, got none")
+    first = rows[0][1]
+    known = {"element", *wanted, *optional, *flags}
+    # a header names a known column or holds no number; anything else is a row of data
+    data_first = not any(column_key(c) in known for c in first) and any(_is_number(c) for c in first)
+    if headerless and data_first:
+        if len(first) not in (len(wanted), len(wanted) + 1):
+            raise ShapeError(f"{path}, line {rows[0][0]}: expected {len(wanted)} columns "
+                             f"({', '.join(wanted)}) or {len(wanted) + 1} (element, {', '.join(wanted)}), "
+                             f"got {len(first)}")
+        header = wanted if len(first) == len(wanted) else ["element", *wanted]
+    else:
+        if data_first:
+            raise ShapeError(f"{path}, line {rows[0][0]}: no header row; expected one naming the columns "
+                             f"{', '.join(wanted)} (any order), optionally element")
+        header = [column_key(c) for c in first]
+        header_line, rows = rows[0][0], rows[1:]
+        twice = sorted({k for k in header if k and header.count(k) > 1})
+        if twice:
+            raise ShapeError(f"{path}, line {header_line}: the column {twice[0]!r} appears twice in "
+                             f"the header")
+        missing = [k for k in wanted if k not in header]
+        if missing:
+            raise ShapeError(
+                f"{path}: no column {', '.join(missing)} in the header {first} (read with delimiter "
+                f"{_delimiter_name(delim)}); expected the columns {', '.join(wanted)} (any order, case "
+                f"and units like 'Fx (N)'), optionally element")
+    width = len(header)
+    cols = {k: header.index(k) for k in (*wanted, *optional, *flags) if k in header}
+    number_names = [k for k in (*wanted, *optional) if k in cols]
+    flag_names = [k for k in flags if k in cols]
+    has_element = "element" in header
+    if not rows:
+        raise ShapeError(f"{path}: expected {n_elements} rows of {', '.join(wanted)}, got none")
+    if not has_element and len(rows) != n_elements:
+        raise ShapeError(f"{path}: expected {n_elements} rows (one per element), got {len(rows)}")
+    out = {k: np.zeros(n_elements) for k in number_names}
+    out.update({k: np.zeros(n_elements, bool) for k in flag_names})
+    row_of: dict[int, int] = {}
+    for i, (lineno, cells) in enumerate(rows):
+        if len(cells) != width:
+            raise ShapeError(f"{path}, line {lineno}: expected {width} columns, got {len(cells)}")
+        if has_element:
+            j = header.index("element")
+            cell = cells[j]
+            try:
+                e = float(cell)
+            except ValueError:
+                e = math.nan
+            if not (e.is_integer() and 0 <= e < n_elements):
+                raise InputError(f"{path}, line {lineno}, column {j + 1}: element {cell!r} does not exist "
+                                 f"(the element column must read 0, 1, ..., {n_elements - 1}, each at "
+                                 f"most once)")
+            e = int(e)
+            if e in row_of:
+                raise InputError(f"{path}, line {lineno}: element {e} appears twice (also on line "
+                                 f"{row_of[e]}); the element column must read 0, 1, ..., "
+                                 f"{n_elements - 1}, each at most once")
+            row_of[e] = lineno
+        else:
+            e = i
+        for k in number_names:
+            out[k][e] = csv_numbers([cells[cols[k]]], path, lineno, first_column=cols[k] + 1)[0]
+        for k in flag_names:
+            flag = _FLAG_CELLS.get(cells[cols[k]].lower())
+            if flag is None:
+                raise InputError(f"{path}, line {lineno}, column {cols[k] + 1} ({k}): expected 0 or 1, "
+                                 f"got {cells[cols[k]]!r}")
+            out[k][e] = flag
+    return out
+
+
 def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
-    """Read element-local forces (N) from a CSV file.
+    r"""Read element-local forces (N) from a CSV file.
 
     Parameters
     ----------
     path : path-like
         The CSV file (see the module docstring for the format).
     n_elements : int
-        Expected number of rows (elements).
+        Number of elements of the sensor.
 
     Returns
     -------
@@ -130,36 +331,24 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
         If the file does not exist.
     InputError
         A cell that is not a finite number (the message gives line and column),
-        element indices out of order.
+        an element index that does not exist or appears twice, a delimiter
+        that cannot be told.
     ShapeError
-        Wrong number of rows or columns.
+        Wrong number of rows or columns, a missing column.
+
+    Examples
+    --------
+    Excel's way (byte-order mark, ``;``, units), one loaded element listed:
+
+    >>> import pathlib, tempfile
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "f.csv"
+    >>> _ = p.write_text("\ufeffElement;Fz (N);Fy (N);Fx (N)\n3;0.5;0;0.1\n", encoding="utf-8")
+    >>> f = read_forces_csv(p, 41)
+    >>> f.shape, f[3].tolist(), float(abs(f).sum() - 0.6) < 1e-12
+    ((41, 3), [0.1, 0.0, 0.5], True)
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"forces file not found: {path}")
-    rows = csv_rows(path)
-    if rows and [c.lower() for c in rows[0][1]] in _HEADERS:
-        rows = rows[1:]
-    if not rows:
-        raise ShapeError(f"{path}: expected {n_elements} rows of fx, fy, fz (N), got none")
-    width = len(rows[0][1])
-    if width not in (3, 4):
-        raise ShapeError(
-            f"{path}, line {rows[0][0]}: expected 3 columns (fx, fy, fz) or 4 "
-            f"(element, fx, fy, fz), got {width}"
-        )
-    values = np.empty((len(rows), width))
-    for i, (lineno, cells) in enumerate(rows):
-        if len(cells) != width:
-            raise ShapeError(f"{path}, line {lineno}: expected {width} columns, got {len(cells)}")
-        values[i] = csv_numbers(cells, path, lineno)
-    if len(rows) != n_elements:
-        raise ShapeError(f"{path}: expected {n_elements} rows (one per element), got {len(rows)}")
-    if width == 4:
-        if not np.array_equal(values[:, 0], np.arange(n_elements)):
-            raise InputError(f"{path}: the element column must read 0, 1, ..., {n_elements - 1}")
-        values = values[:, 1:]
-    return values
+    cols = read_element_table(path, n_elements, _HEADERS[0])
+    return np.stack([cols[k] for k in _HEADERS[0]], axis=1)
 
 
 def write_forces_csv(path: str | os.PathLike, forces: np.ndarray) -> None:
