@@ -28,7 +28,8 @@ from .errors import InputError, ShapeError
 
 __all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
            "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy",
-           "read_element_table", "csv_rows", "column_key"]
+           "read_element_table", "csv_rows", "column_key",
+           "partial_path", "per_frame_path"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -397,69 +398,178 @@ def write_json(path: str | os.PathLike, obj) -> None:
     atomic_write_text(path, json.dumps(obj, indent=2, default=default) + "\n")
 
 
+def _csv_cell(text: str) -> str:
+    """``text`` as one CSV cell (quoted as :mod:`csv` does when it holds a delimiter, quote or newline)."""
+    if any(ch in text for ch in ',"\r\n'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def add_to_message(exc: BaseException, text: str) -> None:
+    """Append ``text`` to the message of ``exc`` (the one the command line prints), in place."""
+    if isinstance(exc, OSError) and exc.strerror:
+        exc.strerror += text
+    elif len(exc.args) == 1 and isinstance(exc.args[0], str):
+        exc.args = (exc.args[0] + text,)
+    else:
+        exc.add_note(text.strip())
+
+
+def partial_path(path: str | os.PathLike) -> Path:
+    """Where :class:`ReadingsWriter` keeps the rows of a run that failed: ``out.csv`` -> ``out.partial.csv``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.partial{path.suffix}")
+
+
+def per_frame_path(path: str | os.PathLike) -> Path:
+    """The per-frame table beside a forces table: ``out.csv`` -> ``out.per_frame.csv``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.per_frame{path.suffix}")
+
+
+class _PartialFile:
+    """A CSV file written beside ``path`` as ``.NAME.PID.partial``, renamed when complete."""
+
+    def __init__(self, path: Path, header: Sequence[str]) -> None:
+        self.path = path
+        self.tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        self.fh = self.tmp.open("w", newline="", encoding="utf-8")
+        self.fh.write(",".join(header) + "\r\n")
+
+    def finish(self, to: Path | None) -> None:
+        """Close, then rename to ``to`` (None: delete)."""
+        if not self.fh.closed:
+            self.fh.close()
+        if to is None:
+            self.tmp.unlink(missing_ok=True)
+        elif self.tmp.exists():
+            os.replace(self.tmp, to)
+
+
 class ReadingsWriter:
     """Append readings (and estimated forces) to a CSV file, one row per frame and element.
 
     Columns: ``frame, source, element, G, ux, uy, contact, saturated`` (G in
     grey level x mm^2, u in mm, flags as 0/1; numbers written with the
-    shortest digits that read back to the same float64), and with ``forces=True`` also
-    ``fx, fy, fz`` (element-local, N) and ``clamped`` (the calibration
-    clamped the reading to its fitted range). Use as a context manager.
+    shortest digits that read back to the same float64). With ``forces=True``
+    also ``fx, fy, fz`` (element-local, N), ``fx_global, fy_global,
+    fz_global`` (the force on the element in the sensor frame, N; as
+    :meth:`optitact.forces.ForceField.as_dict`) and ``clamped`` (the
+    calibration clamped the reading to its fitted range); and a second table,
+    :func:`per_frame_path` (``out.per_frame.csv``), with one row per frame:
+    :data:`FRAME_COLUMNS`, i.e. ``frame, source``, the elements in contact and
+    clamped, ``total_normal`` (sum of Fz over contact elements, N), the
+    resultant force ``resultant_x, resultant_y, resultant_z`` (global, N) and
+    the centre of pressure ``centre_of_pressure_x, _y, _z`` (mm, on the outer
+    surface; empty when no element carries a normal force), as
+    :class:`~optitact.forces.ForceField` computes them. Both tables read with
+    ``pandas.read_csv`` as they are. Use as a context manager.
 
-    Rows go to a temporary file beside ``path``, renamed to ``path`` on
-    :meth:`close`: a reader never sees half a table. Leaving the ``with``
-    block by an exception discards the rows and leaves ``path`` untouched.
+    Rows go to a hidden temporary file beside ``path`` (``.NAME.PID.partial``),
+    renamed to ``path`` on :meth:`close`: a reader never sees half a table,
+    and an existing ``path`` stays as it was until the new table is complete.
+    Leaving the ``with`` block by an exception keeps the rows written so far
+    as :func:`partial_path` (``out.partial.csv``; nothing when no frame was
+    written) and adds where they are to the exception's message; a killed
+    process leaves its hidden temporary file and ``path`` untouched.
     """
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
-    FORCE_COLUMNS = ("fx", "fy", "fz", "clamped")
+    FORCE_COLUMNS = ("fx", "fy", "fz", "fx_global", "fy_global", "fz_global", "clamped")
+    FRAME_COLUMNS = ("frame", "source", "n_contact", "n_clamped", "total_normal", "resultant_x",
+                     "resultant_y", "resultant_z", "centre_of_pressure_x", "centre_of_pressure_y",
+                     "centre_of_pressure_z")
 
-    def __init__(self, path: str | os.PathLike, *, forces: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None) -> None:
         self.path = Path(path)
         self.with_forces = forces
+        if forces:
+            from optitact.sensor import DomeSensor
+
+            if not isinstance(sensor, DomeSensor):
+                raise TypeError(f"a ReadingsWriter with forces needs the sensor (a DomeSensor) for the "
+                                f"global forces, got {type(sensor).__name__}")
+        self.sensor = sensor
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.stem}.{os.getpid()}.tmp{self.path.suffix}")
-        self._fh = self._tmp.open("w", newline="")
-        self._csv = csv.writer(self._fh)
-        self._csv.writerow(self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))
+        self._files = [_PartialFile(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))]
+        if forces:
+            self._files.append(_PartialFile(per_frame_path(self.path), self.FRAME_COLUMNS))
+        self._fh = self._files[0].fh
         self.frames = 0
+
+    @property
+    def paths(self) -> list[Path]:
+        """The files this writer makes: ``path`` (and :func:`per_frame_path` with forces)."""
+        return [f.path for f in self._files]
 
     def write(self, readings, sources: Sequence[str], forces=None, clamped=None) -> None:
         """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept."""
         r = readings if readings.is_stack else readings._lifted()
-        if len(r) != len(sources):
-            raise ShapeError(f"got readings of {len(r)} frames for {len(sources)} sources")
-        if self.with_forces:
-            if forces is None or clamped is None:
-                raise ValueError("this writer has force columns: pass forces and clamped")
-            forces = np.asarray(forces).reshape(len(r), r.n_elements, 3)
-            clamped = np.asarray(clamped).reshape(len(r), r.n_elements)
+        n, n_el = len(r), r.n_elements
+        if n != len(sources):
+            raise ShapeError(f"got readings of {n} frames for {len(sources)} sources")
         # repr of a Python float is the shortest string that reads back to the same float64, so
         # sums over the file (10^6 rows and more) equal sums over the readings bit for bit
-        g, u = r.G.tolist(), r.u.tolist()
+        g, ux, uy = r.G.tolist(), r.u[..., 0].tolist(), r.u[..., 1].tolist()
         contact, saturated = r.contact.tolist(), r.saturated.tolist()
-        if self.with_forces:
-            forces, clamped = forces.astype(np.float64).tolist(), clamped.tolist()
+        elements = range(n_el)
+        lines: list[str] = []
+        if not self.with_forces:
+            for k, src in enumerate(sources):
+                head = f"{self.frames + k},{_csv_cell(src)},"
+                lines += [f"{head}{i},{a!r},{b!r},{c!r},{d:d},{e:d}\r\n"
+                          for i, a, b, c, d, e
+                          in zip(elements, g[k], ux[k], uy[k], contact[k], saturated[k], strict=True)]
+            self._files[0].fh.write("".join(lines))
+            self.frames += n
+            return
+        if forces is None or clamped is None:
+            raise ValueError("this writer has force columns: pass forces and clamped")
+        from optitact.forces import frame_totals
+
+        f = np.asarray(forces, dtype=np.float64).reshape(n, n_el, 3)
+        cl = np.asarray(clamped, dtype=bool).reshape(n, n_el)
+        tot = frame_totals(self.sensor, f, r.contact)
+        fx, fy, fz = f[..., 0].tolist(), f[..., 1].tolist(), f[..., 2].tolist()
+        gl = tot["global"]
+        gx, gy, gz = gl[..., 0].tolist(), gl[..., 1].tolist(), gl[..., 2].tolist()
+        clamped_ = cl.tolist()
+        per_frame = []
+        res, cop = tot["resultant"].tolist(), tot["centre_of_pressure"].tolist()
         for k, src in enumerate(sources):
-            for i in range(r.n_elements):
-                row = [self.frames, src, i, repr(g[k][i]), repr(u[k][i][0]), repr(u[k][i][1]),
-                       int(contact[k][i]), int(saturated[k][i])]
-                if self.with_forces:
-                    row += [repr(v) for v in forces[k][i]] + [int(clamped[k][i])]
-                self._csv.writerow(row)
-            self.frames += 1
+            cell = _csv_cell(src)
+            head = f"{self.frames + k},{cell},"
+            lines += [f"{head}{i},{a!r},{b!r},{c!r},{d:d},{e:d},{p!r},{q!r},{s!r},{x!r},{y!r},{z!r},{h:d}\r\n"
+                      for i, a, b, c, d, e, p, q, s, x, y, z, h
+                      in zip(elements, g[k], ux[k], uy[k], contact[k], saturated[k], fx[k], fy[k], fz[k],
+                             gx[k], gy[k], gz[k], clamped_[k], strict=True)]
+            where = ",".join("" if math.isnan(v) else repr(v) for v in cop[k])
+            per_frame.append(f"{head}{int(tot['n_contact'][k])},{int(cl[k].sum())},"
+                             f"{float(tot['total_normal'][k])!r},{res[k][0]!r},{res[k][1]!r},{res[k][2]!r},"
+                             f"{where}\r\n")
+        self._files[0].fh.write("".join(lines))
+        self._files[1].fh.write("".join(per_frame))
+        self.frames += n
 
     def close(self) -> None:
-        """Close the file and move it to ``path`` (again: nothing)."""
-        if self._fh.closed:
-            return
-        self._fh.close()
-        os.replace(self._tmp, self.path)
+        """Close the files and move them to their paths (again: nothing)."""
+        for f in reversed(self._files):  # the main table last: when it is there, both are
+            f.finish(f.path)
 
     def discard(self) -> None:
         """Close and delete the rows written so far; ``path`` is left as it was."""
-        self._fh.close()
-        self._tmp.unlink(missing_ok=True)
+        for f in self._files:
+            f.finish(None)
+
+    def keep_partial(self) -> list[Path]:
+        """Close and keep the rows written so far as :func:`partial_path` files (none without rows)."""
+        if not self.frames:
+            self.discard()
+            return []
+        kept = [partial_path(f.path) for f in self._files]
+        for f, to in zip(self._files, kept, strict=True):
+            f.finish(to)
+        return kept
 
     def __enter__(self) -> ReadingsWriter:
         return self
@@ -467,5 +577,9 @@ class ReadingsWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
-        else:
-            self.discard()
+            return
+        kept = self.keep_partial()
+        if kept and exc is not None:
+            add_to_message(exc, f" [{self.frames} frames were written before this error: their rows are "
+                                f"in {', '.join(map(str, kept))}, a partial table; "
+                                f"{self.path} was not written]")
