@@ -580,6 +580,7 @@ class ReadingsWriter:
             return
         kept = self.keep_partial()
         if kept and exc is not None:
-            add_to_message(exc, f" [{self.frames} frames were written before this error: their rows are "
+            frames = f"{self.frames} frame{'s were' if self.frames != 1 else ' was'}"
+            add_to_message(exc, f" [{frames} written before this error: their rows are "
                                 f"in {', '.join(map(str, kept))}, a partial table; "
                                 f"{self.path} was not written]")
