@@ -23,10 +23,9 @@ from optitact._validate import finite, positive, real_array
 from optitact.camera import FisheyeCamera
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
-from optitact.io import csv_numbers, csv_rows
 from optitact.sensor import DomeSensor
 
-__all__ = ["ForceField", "global_from_local", "local_from_global"]
+__all__ = ["ForceField", "frame_totals", "global_from_local", "local_from_global"]
 
 _SIGN = np.array([1.0, 1.0, -1.0])
 
@@ -55,6 +54,43 @@ def local_from_global(sensor: DomeSensor, forces_global) -> np.ndarray:
     """Inverse of :func:`global_from_local`."""
     f = check_forces(forces_global, sensor, "forces_global")
     return np.einsum("nij,nj->ni", sensor.element_frames, f) * _SIGN
+
+
+def frame_totals(sensor: DomeSensor, local, contact) -> dict[str, np.ndarray]:
+    """Per-frame totals of a stack of force fields: :class:`ForceField`'s quantities, vectorised.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    local : (T, N, 3) array_like
+        Element-local forces (N) of ``T`` frames.
+    contact : (T, N) bool array_like
+        Elements in contact.
+
+    Returns
+    -------
+    dict of str to ndarray
+        ``global`` (T, N, 3) global forces on the elements (N);
+        ``resultant`` (T, 3) their sum over contact elements (N);
+        ``total_normal`` (T,) the sum of ``Fz`` over contact elements (N);
+        ``centre_of_pressure`` (T, 3) in mm, NaN where :attr:`ForceField.centre_of_pressure`
+        is None; ``n_contact`` (T,) int. Frame ``t`` equals
+        ``ForceField(sensor, local[t], contact=contact[t])``'s (to rounding).
+    """
+    f = np.asarray(local, dtype=np.float64)
+    c = np.asarray(contact, dtype=bool)
+    g = np.einsum("nij,tni->tnj", sensor.element_frames, f * _SIGN)
+    cm = c[..., None]
+    w = np.where(c, np.maximum(f[..., 2], 0.0), 0.0)
+    total = w.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = (w @ sensor.element_positions) / total[:, None]
+        norm = np.linalg.norm(p, axis=1)
+        cop = sensor.outer_radius * p / norm[:, None]
+    cop[~((total > 0) & (norm > 0))] = np.nan
+    return {"global": g, "resultant": np.where(cm, g, 0.0).sum(axis=1),
+            "total_normal": np.where(c, f[..., 2], 0.0).sum(axis=1), "centre_of_pressure": cop,
+            "n_contact": c.sum(axis=1)}
 
 
 # ----------------------------------------------------------------------------- force field
@@ -246,80 +282,76 @@ class ForceField:
         }
 
     def to_csv(self, path: str | os.PathLike) -> Path:
-        """Write :meth:`as_dict` as CSV with a header row; returns the path.
+        """Write :meth:`as_dict` as CSV with a header row, atomically; returns the path.
 
         Floats are written with ``repr`` (shortest exact round trip), flags as
-        0/1.
+        0/1. The rows go to a temporary file renamed to ``path`` when complete
+        (:func:`optitact.io.atomic_write`): ``path`` is the old file or the
+        whole new one, never half of it.
         """
-        path = Path(path)
+        from optitact.io import atomic_write
+
         table = self.as_dict()
-        with path.open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(_CSV_COLUMNS)
-            for i in range(self.n_elements):
-                w.writerow([int(i), *(repr(float(table[k][i])) for k in _CSV_COLUMNS[1:7]),
-                            *(int(table[k][i]) for k in _FLAG_NAMES)])
-        return path
+
+        def write(tmp: Path) -> None:
+            with tmp.open("w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow(_CSV_COLUMNS)
+                for i in range(self.n_elements):
+                    w.writerow([int(i), *(repr(float(table[k][i])) for k in _CSV_COLUMNS[1:7]),
+                                *(int(table[k][i]) for k in _FLAG_NAMES)])
+
+        return atomic_write(path, write)
 
     @classmethod
     def from_csv(cls, path: str | os.PathLike, sensor: DomeSensor) -> ForceField:
-        """Read a force field written by :meth:`to_csv`.
+        """Read a force field from CSV: the files :meth:`to_csv` writes, and those people write.
 
-        The local forces and flags are read; the global columns are checked
-        against the local ones for this ``sensor``. Blank lines and lines
-        starting with ``#`` are ignored.
+        Columns are found by header name (:func:`optitact.io.read_element_table`):
+        ``fx, fy, fz`` (element-local, N) are needed, in any order, whatever
+        their case and a unit in parentheses or brackets (``Fx (N)``);
+        ``element``, the global columns ``fx_global, fy_global, fz_global``
+        and the 0/1 flags ``contact, clamped, saturated`` are read when
+        present (a missing flag takes the :class:`ForceField` default), other
+        columns are ignored. With an ``element`` column any subset of the
+        elements may be listed, each at most once (the others are unloaded).
+        The delimiter is ``,``, ``;`` or tab, a UTF-8 byte-order mark is fine,
+        and blank lines and lines starting with ``#`` are ignored. Global
+        columns, when present, are checked against the local ones for this
+        ``sensor``.
 
         Raises
         ------
         FileNotFoundError
             If the file does not exist.
         ShapeError
-            Wrong header, number of columns or rows.
+            No header or a missing column, wrong number of columns or rows.
         InputError
             A cell that is not a finite number or a 0/1 flag (the message gives
-            line and column), element indices out of order, or global columns
-            that disagree with the local forces for ``sensor``.
+            line and column), an element index that does not exist or appears
+            twice, a delimiter that cannot be told, or global columns that
+            disagree with the local forces for ``sensor``.
         """
+        from optitact.io import read_element_table
+
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"force field file not found: {path}")
-        rows = csv_rows(path)
-        if not rows or tuple(c.lower() for c in rows[0][1]) != _CSV_COLUMNS:
-            got = rows[0][1] if rows else "an empty file"
-            raise ShapeError(f"{path}: expected the header {', '.join(_CSV_COLUMNS)}, got {got}")
-        rows = rows[1:]
-        n = sensor.n_elements
-        if len(rows) != n:
-            raise ShapeError(f"{path}: expected {n} rows (one per element), got {len(rows)}")
-        values = np.empty((n, 7))
-        flags = np.empty((n, 3), dtype=bool)
-        for i, (lineno, cells) in enumerate(rows):
-            if len(cells) != len(_CSV_COLUMNS):
-                raise ShapeError(
-                    f"{path}, line {lineno}: expected {len(_CSV_COLUMNS)} columns, got {len(cells)}"
+        cols = read_element_table(path, sensor.n_elements, _CSV_COLUMNS[1:4], optional=_CSV_COLUMNS[4:7],
+                                  flags=_FLAG_NAMES, headerless=False, what="force field")
+        local = np.stack([cols[k] for k in _CSV_COLUMNS[1:4]], axis=1)
+        ff = cls(sensor, local, **{k: cols.get(k) for k in _FLAG_NAMES})
+        given = [k for k in _CSV_COLUMNS[4:7] if k in cols]
+        if given:
+            j = [_CSV_COLUMNS.index(k) - 4 for k in given]
+            written = np.stack([cols[k] for k in given], axis=1)
+            err = np.abs(ff.global_forces[:, j] - written)
+            tol = 1e-9 * max(1.0, float(np.abs(local).max()), float(np.abs(written).max()))
+            if np.any(err > tol):
+                bad = int(np.argmax(err.max(axis=1)))
+                raise InputError(
+                    f"{path}: global forces of element {bad} disagree with its local forces for this "
+                    f"sensor by {err.max():.3g} N (written for a different sensor?)"
                 )
-            values[i] = csv_numbers(cells[:7], path, lineno)
-            for j, cell in enumerate(cells[7:]):
-                if cell not in ("0", "1"):
-                    raise InputError(
-                        f"{path}, line {lineno}, column {j + 8} ({_FLAG_NAMES[j]}): expected 0 or 1, "
-                        f"got {cell!r}"
-                    )
-                flags[i, j] = cell == "1"
-        if not np.array_equal(values[:, 0], np.arange(n)):
-            raise InputError(f"{path}: the element column must read 0, 1, ..., {n - 1}")
-        ff = cls(sensor, values[:, 1:4], contact=flags[:, 0], clamped=flags[:, 1],
-                 saturated=flags[:, 2])
-        err = np.abs(ff.global_forces - values[:, 4:7])
-        tol = 1e-9 * max(1.0, float(np.abs(values[:, 1:7]).max()))
-        if np.any(err > tol):
-            bad = int(np.argmax(err.max(axis=1)))
-            raise InputError(
-                f"{path}: global forces of element {bad} disagree with its local forces for this "
-                f"sensor by {err.max():.3g} N (written for a different sensor?)"
-            )
         return ff
 
     # ----------------------------------------------------------------- picture

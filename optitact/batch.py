@@ -23,20 +23,23 @@ Examples
 
 from __future__ import annotations
 
+import itertools
 import os
 import sys
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from ._validate import integer
-from .errors import InputError
+from .errors import InputError, OptitactError
 from .frames import count_frames, expand_sources, iter_frames
 from .io import ReadingsWriter
 from .pipeline import Pipeline, take_baseline
 from .readings import Readings
+from .steps import check_frames
 
 __all__ = ["ProcessedFrames", "process_files"]
 
@@ -64,6 +67,18 @@ class ProcessedFrames:
         Its readings ``(E,)``.
     seconds : float
         Wall time, reading the files included.
+    global_forces : (n_frames, E, 3) ndarray or None
+        With a calibration, when not written to ``out``: the forces on the
+        elements in the sensor frame (N), as
+        :attr:`optitact.forces.ForceField.global_forces`.
+    resultant : (n_frames, 3) ndarray or None
+        Likewise: per frame, the sum of the global forces over contact
+        elements (N).
+    total_normal : (n_frames,) ndarray or None
+        Likewise: per frame, the sum of Fz over contact elements (N).
+    centre_of_pressure : (n_frames, 3) ndarray or None
+        Likewise: per frame, the centre of pressure on the outer surface (mm;
+        NaN where no element carries a normal force).
     """
 
     n_frames: int
@@ -74,13 +89,17 @@ class ProcessedFrames:
     last_frame: np.ndarray
     last_readings: Readings
     seconds: float
+    global_forces: np.ndarray | None = None
+    resultant: np.ndarray | None = None
+    total_normal: np.ndarray | None = None
+    centre_of_pressure: np.ndarray | None = None
 
 
 class _Table:
     """The in-memory counterpart of :class:`~optitact.io.ReadingsWriter` (same ``write``)."""
 
-    def __init__(self, *, forces: bool) -> None:
-        self.with_forces, self.frames = forces, 0
+    def __init__(self, *, forces: bool, sensor=None) -> None:
+        self.with_forces, self.sensor, self.frames = forces, sensor, 0
         self.parts: list = []
 
     def write(self, readings, sources, forces=None, clamped=None) -> None:
@@ -93,16 +112,48 @@ class _Table:
     def __exit__(self, *exc) -> None:
         pass
 
-    def result(self):
+    def result(self) -> dict:
+        """The fields of :class:`ProcessedFrames` that hold the table."""
         r = Readings.stack([p[0] for p in self.parts])
         if not self.with_forces:
-            return r, None, None
-        return r, np.concatenate([p[1] for p in self.parts]), np.concatenate([p[2] for p in self.parts])
+            return {"readings": r, "forces": None, "clamped": None}
+        from optitact.forces import frame_totals
+
+        forces = np.concatenate([p[1] for p in self.parts])
+        tot = frame_totals(self.sensor, forces, r.contact)
+        return {"readings": r, "forces": forces, "clamped": np.concatenate([p[2] for p in self.parts]),
+                "global_forces": tot["global"], "resultant": tot["resultant"],
+                "total_normal": tot["total_normal"], "centre_of_pressure": tot["centre_of_pressure"]}
+
+
+def frame_label(name: str) -> str:
+    """A frame's source as the messages name it: ``"rec.npy#50"`` -> ``"rec.npy, frame 50"``.
+
+    Frames of a stack or video are counted from 0 within their file.
+    """
+    file, sep, k = name.rpartition("#")
+    return f"{file}, frame {k}" if sep and k.isdigit() else name
 
 
 def _check_shape(name: str, frame: np.ndarray, shape: tuple[int, int]) -> None:
     if frame.shape != shape:
-        raise InputError(f"{name}: expected a {shape[0]}x{shape[1]} frame for this camera, got {frame.shape}")
+        raise InputError(f"{frame_label(name)}: expected a {shape[0]}x{shape[1]} frame for this camera, "
+                         f"got {frame.shape}")
+
+
+def _name_the_frame(pipe: Pipeline, names: Sequence[str], frames) -> None:
+    """Raise the error of the first frame that the pipeline refuses, naming its file and index there.
+
+    Called when a batch failed: the batch's own message counts frames within
+    the batch. Returns (and the caller re-raises its error) when no single
+    frame is at fault.
+    """
+    for name, frame in zip(names, frames, strict=True):
+        try:
+            check_frames(frame, pipe.camera, "the frame")
+        except (OptitactError, TypeError, ValueError) as exc:
+            msg = str(exc).replace(" at frame 0, pixel", " at pixel")
+            raise type(exc)(f"{frame_label(name)}: {msg}") from None
 
 
 def _batches(pairs: Iterable, shape: tuple[int, int], batch: int):
@@ -120,7 +171,11 @@ def _batches(pairs: Iterable, shape: tuple[int, int], batch: int):
 
 def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray) -> tuple:
     """``(names, readings, forces, clamped, last frame)`` of one batch (forces None without ``cal``)."""
-    r = pipe.process(stack)
+    try:
+        r = pipe.process(stack)
+    except (OptitactError, TypeError, ValueError):
+        _name_the_frame(pipe, names, stack)
+        raise
     forces, clamped = cal.forces(r) if cal is not None else (None, None)
     return names, r, forces, clamped, stack[-1]
 
@@ -145,17 +200,26 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
     pipeline : Pipeline, optional
         Turns frames into readings; default ``calibration.pipeline()``.
     calibration : Calibration, optional
-        Also estimate element-local forces (``fx, fy, fz, clamped`` columns).
+        Also estimate forces: the element-local ``fx, fy, fz``, the global
+        ``fx_global, fy_global, fz_global`` and ``clamped`` of every element,
+        and per frame the resultant, total normal force and centre of
+        pressure (see :class:`~optitact.io.ReadingsWriter`).
     baseline : (H, W) or (T, H, W) array_like, optional
         No-load frame(s) to use as the pipeline's baseline.
     baseline_frames : int
         When neither ``baseline`` nor the pipeline holds a baseline, the mean
         of the first ``baseline_frames`` frames becomes it (default 1: the
         recording starts unloaded; 0 subtracts nothing). Those frames are
-        processed too.
+        processed too. At least one frame must follow them: input that would
+        be all baseline has nothing to measure and is an error.
     out : path-like, optional
-        Write the table as CSV here (atomically; see
-        :class:`~optitact.io.ReadingsWriter`) instead of keeping it in memory.
+        Write the table as CSV here instead of keeping it in memory (with a
+        calibration also ``NAME.per_frame.csv`` beside it, one row per frame).
+        The files appear when the run is complete (a temporary file is
+        renamed), so an existing ``out`` is never replaced by a partial table;
+        if the run fails, the rows of the frames done so far are kept as
+        ``NAME.partial.csv`` and the error says so (see
+        :class:`~optitact.io.ReadingsWriter`).
     batch : int
         Frames processed together (default 32); the results do not depend on it.
     scheduler : str or distributed.Client, optional
@@ -170,9 +234,12 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
 
     Raises
     ------
-    FileNotFoundError, InputError, ShapeError
-        A missing or unreadable source, no frames, a frame of the wrong size,
-        fewer frames than ``baseline_frames``.
+    FileNotFoundError, InputError, ShapeError, KindError
+        A missing or unreadable source, no frames, a frame of the wrong size
+        or kind or with NaN (the message names its file, and its index within
+        the file counted from 0 for a stack or video: ``rec.npy, frame 50``),
+        fewer frames than ``baseline_frames`` or none after them, ``out``
+        naming a folder.
     TypeError
         Neither a pipeline nor a calibration, or objects of the wrong kind.
     """
@@ -185,24 +252,40 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         raise TypeError(f"pipeline must be a Pipeline, got {type(pipe).__name__}")
     batch = integer(batch, "batch", minimum=1)
     n_base = integer(baseline_frames, "baseline_frames", minimum=0)
+    if out is not None and Path(out).is_dir():
+        raise InputError(f"out: {out} is a folder; expected the name of the CSV file to write "
+                         f"(e.g. {Path(out) / 'readings.csv'})")
     files = expand_sources(sources)
     t0 = time.perf_counter()
     if baseline is not None:
         pipe, n_base = pipe.with_baseline(baseline), 0
     elif pipe.baseline is not None:
         n_base = 0
-    pairs = iter_frames(files)
-    base, head, pairs = take_baseline(pairs, n_base, frame=lambda item: item[1])
-    if base is not None:
-        for name, frame in head:
-            _check_shape(name, frame, pipe.camera.shape)
-        pipe = pipe.with_baseline(base)
-    sink = ReadingsWriter(out, forces=calibration is not None) if out is not None \
-        else _Table(forces=calibration is not None)
+    with_forces = calibration is not None
+    sensor = calibration.sensor if with_forces else None
+    sink = ReadingsWriter(out, forces=with_forces, sensor=sensor) if out is not None \
+        else _Table(forces=with_forces, sensor=sensor)
     names: list[str] = []
     last = None
     with sink, tqdm(total=count_frames(files), unit="frame", desc="process", file=sys.stderr,
                     disable=not progress) as bar:
+        base, head, pairs = take_baseline(iter_frames(files), n_base, frame=lambda item: item[1])
+        if base is not None:
+            for name, frame in head:
+                _check_shape(name, frame, pipe.camera.shape)
+            try:
+                pipe = pipe.with_baseline(base)
+            except (OptitactError, TypeError, ValueError):
+                _name_the_frame(pipe, [n for n, _ in head], [f for _, f in head])
+                raise
+            following = next(pairs, None)
+            if following is None:
+                raise InputError(
+                    f"all {len(head)} frame(s) of the input would become the no-load baseline "
+                    f"(baseline_frames={n_base}), so no frame is left to measure: pass a no-load "
+                    f"frame as the baseline (--baseline), record more frames after the no-load ones, or "
+                    f"set baseline_frames=0 (--baseline-frames 0) to subtract nothing")
+            pairs = itertools.chain([following], pairs)
         for part in _results(pipe, calibration, files, head, pairs, batch, scheduler):
             part_names, r, forces, clamped, _ = part
             if calibration is None:
@@ -214,9 +297,9 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
             bar.update(len(part_names))
         if last is None:
             raise InputError("the frames hold no frame")
-    readings, forces, clamped = sink.result() if out is None else (None, None, None)
-    return ProcessedFrames(len(names), names, readings, forces, clamped, last[4], last[1][-1],
-                           time.perf_counter() - t0)
+    table = sink.result() if out is None else {"readings": None, "forces": None, "clamped": None}
+    return ProcessedFrames(n_frames=len(names), sources=names, last_frame=last[4], last_readings=last[1][-1],
+                           seconds=time.perf_counter() - t0, **table)
 
 
 def _results(pipe, cal, files, head, rest, batch, scheduler):

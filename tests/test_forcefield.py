@@ -267,7 +267,7 @@ def test_csv_errors(sensor, tmp_path):
     lines = path.read_text().splitlines()
     with pytest.raises(FileNotFoundError, match="not found"):
         ForceField.from_csv(tmp_path / "missing.csv", sensor)
-    with pytest.raises(ShapeError, match="expected 13 rows"):
+    with pytest.raises(InputError, match=r"line 15, column 1: element '13' does not exist"):
         ForceField.from_csv(path, DomeSensor(ring_counts=(1, 12), ring_polar_deg=(0.0, 40.0)))
     bad = tmp_path / "bad.csv"
     cells = lines[3].split(",")
@@ -281,8 +281,64 @@ def test_csv_errors(sensor, tmp_path):
     with pytest.raises(InputError, match="global forces of element 2 disagree"):
         ForceField.from_csv(bad, sensor)
     bad.write_text("\n".join(["fx,fy,fz", *lines[1:]]))
-    with pytest.raises(ShapeError, match="expected the header element, fx"):
+    with pytest.raises(ShapeError, match="line 2: expected 3 columns, got 10"):
         ForceField.from_csv(bad, sensor)
+    bad.write_text("\n".join(lines[1:]))  # no header: the columns cannot be named
+    with pytest.raises(ShapeError, match=r"line 1: no header row; expected one naming the columns fx, fy, fz"):
+        ForceField.from_csv(bad, sensor)
+    bad.write_text("\n".join([*lines, lines[3]]))
+    with pytest.raises(InputError, match=r"line 43: element 2 appears twice \(also on line 4\)"):
+        ForceField.from_csv(bad, sensor)
+
+
+def _as_people_write(ff, *, bom=False, delimiter=",", units=False, order=(0, 1, 2), sparse=False):
+    """``ff``'s local forces as a person (or Excel) writes them: any column order, units, ``;``, a BOM."""
+    names = [("Fx (N)", "Fy (N)", "Fz (N)")[i] if units else ("fx", "fy", "fz")[i] for i in order]
+    rows = [delimiter.join(["Element", *names])]
+    for i in range(ff.n_elements):
+        if sparse and not ff.local[i].any():
+            continue
+        rows.append(delimiter.join([str(i), *(repr(float(ff.local[i, j])) for j in order)]))
+    return ("\ufeff" if bom else "") + "\r\n".join(rows) + "\r\n"
+
+
+@pytest.mark.parametrize("style", [
+    {"bom": True}, {"units": True}, {"order": (2, 1, 0)}, {"sparse": True}, {"delimiter": ";"},
+    {"delimiter": "\t", "units": True, "order": (1, 2, 0)},
+    {"bom": True, "delimiter": ";", "units": True, "order": (2, 0, 1), "sparse": True},
+])
+def test_forces_files_as_people_write_them(sensor, tmp_path, style):
+    """Excel's BOM, units in headers, other column orders, sparse rows, ';' or tab: read by column name."""
+    from optitact.io import read_forces_csv
+
+    f = np.zeros((N, 3))
+    f[[0, 5, 20]] = [(0.1, -0.05, 0.6), (0.0, 0.02, 0.4), (-1.0 / 3.0, 0.0, 0.3)]
+    ff = ForceField(sensor, f)
+    path = tmp_path / "people.csv"
+    path.write_bytes(_as_people_write(ff, **style).encode("utf-8"))
+    np.testing.assert_array_equal(read_forces_csv(path, N), f)  # repr floats: exact
+    back = ForceField.from_csv(path, sensor)
+    np.testing.assert_array_equal(back.local, f)
+    np.testing.assert_array_equal(back.contact, f[:, 2] > 0)  # no contact column: the default
+
+
+@pytest.mark.parametrize("text, match", [
+    ("fx|fy|fz\n0|0|1\n", r"no column fx, fy, fz in the header \['fx\|fy\|fz'\]"),
+    ("element,fx,fy,fz\n3,0,0,1\n3,0,0,2\n", r"line 3: element 3 appears twice \(also on line 2\)"),
+    ("element,fx,fy,fz\n41,0,0,1\n", r"element '41' does not exist"),
+    ("element,fx,fy,fz\n1.5,0,0,1\n", r"element '1.5' does not exist"),
+    ("element,fx,fx,fz\n1,0,0,1\n", r"the column 'fx' appears twice"),
+    ("Fx [N];Fy [N];Force\n0;0;1\n", r"no column fz in the header.*delimiter ';' \(semicolon\)"),
+])
+def test_forces_files_that_cannot_be_read_say_why(sensor, tmp_path, text, match):
+    from optitact.io import read_forces_csv
+
+    path = tmp_path / "f.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        read_forces_csv(path, N)
+    with pytest.raises(ValueError, match=match):
+        ForceField.from_csv(path, sensor)
 
 
 # ----------------------------------------------------------------------------- plot

@@ -11,6 +11,7 @@ import pytest
 
 import optitact
 from optitact.cli import main
+from optitact.errors import InputError
 from optitact.frames import count_frames, expand_sources, iter_frames
 
 SENSOR = optitact.DomeSensor.default()
@@ -245,3 +246,140 @@ def test_a_frame_file_of_text_is_bad_input_not_a_bug(tmp_path, capsys):
     last = err.strip().splitlines()[-1]
     assert last.startswith("optitact: error:") and "dtype" in last
     assert not (tmp_path / "r.csv").exists()
+
+
+# ----------------------------------------------------------------------------- issue 17
+@pytest.fixture(scope="module")
+def small_cal(tmp_path_factory):
+    """The shipped calibration's curves for this module's 160x120 camera and the default pipeline (quick)."""
+    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
+
+    shipped = json.loads(DEFAULT_CALIBRATION.read_text())
+    shipped.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
+    cal = Calibration.from_dict(shipped)
+    return cal, cal.save(tmp_path_factory.mktemp("cal") / "cal.json")
+
+
+def test_process_with_a_calibration_writes_global_forces_and_a_per_frame_table(tmp_path, frames, small_cal):
+    """Forces where users need them: global columns per element, resultant and centre of pressure per frame."""
+
+    cal, path = small_cal
+    np.save(tmp_path / "s.npy", frames)
+    out = tmp_path / "f.csv"
+    assert main(["process", str(tmp_path / "s.npy"), "--calibration", str(path), "--out", str(out)]) == 0
+    rows = read_csv(out)
+    assert list(rows[0]) == ["frame", "source", "element", "G", "ux", "uy", "contact", "saturated", "fx", "fy",
+                             "fz", "fx_global", "fy_global", "fz_global", "clamped"]
+    assert len(rows) == 3 * 41
+    per_frame = read_csv(tmp_path / "f.per_frame.csv")
+    assert list(per_frame[0]) == ["frame", "source", "n_contact", "n_clamped", "total_normal", "resultant_x",
+                                  "resultant_y", "resultant_z", "centre_of_pressure_x", "centre_of_pressure_y",
+                                  "centre_of_pressure_z"]
+    assert [r["source"] for r in per_frame] == ["s.npy#0", "s.npy#1", "s.npy#2"]
+    # the truth: ForceField of the calibration's own estimate, frame by frame
+    fields = cal.apply(cal.pipeline(baseline=frames[0]).process(frames))
+    col = lambda name: np.array([float(r[name]) for r in rows]).reshape(3, 41)  # noqa: E731
+    for t, ff in enumerate(fields):
+        np.testing.assert_allclose(np.stack([col(k)[t] for k in ("fx", "fy", "fz")], -1), ff.local,
+                                   rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(np.stack([col(k)[t] for k in ("fx_global", "fy_global", "fz_global")], -1),
+                                   ff.global_forces, rtol=1e-9, atol=1e-12)
+        row = per_frame[t]
+        assert int(row["n_contact"]) == ff.n_contact and int(row["n_clamped"]) == int(ff.clamped.sum())
+        np.testing.assert_allclose(float(row["total_normal"]), ff.total_normal, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose([float(row[f"resultant_{a}"]) for a in "xyz"], ff.resultant,
+                                   rtol=1e-9, atol=1e-12)
+        cop = [row[f"centre_of_pressure_{a}"] for a in "xyz"]
+        if ff.centre_of_pressure is None:
+            assert cop == ["", "", ""]
+        else:
+            np.testing.assert_allclose([float(v) for v in cop], ff.centre_of_pressure, rtol=1e-9, atol=1e-9)
+    assert per_frame[0]["centre_of_pressure_x"] == "" and fields[2].n_contact > 0  # baseline frame: no contact
+    # from Python, in memory: the same numbers
+    from optitact.batch import process_files
+
+    got = process_files([tmp_path / "s.npy"], calibration=cal)
+    np.testing.assert_allclose(got.resultant, [ff.resultant for ff in fields], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got.global_forces, [ff.global_forces for ff in fields], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got.total_normal, [ff.total_normal for ff in fields], rtol=1e-9, atol=1e-12)
+    assert np.isnan(got.centre_of_pressure[0]).all()
+    np.testing.assert_allclose(got.centre_of_pressure[2], fields[2].centre_of_pressure, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("n_frames, extra", [(1, []), (3, ["--baseline-frames", "3"])])
+def test_input_that_is_all_baseline_is_an_error(tmp_path, frames, small_cal, capsys, n_frames, extra):
+    """One loaded frame (or N frames with --baseline-frames N) would become its own baseline: zero forces."""
+    _, cal_path = small_cal
+    np.save(tmp_path / "s.npy", frames[-n_frames:])
+    out = tmp_path / "f.csv"
+    assert main(["process", str(tmp_path / "s.npy"), "--calibration", str(cal_path), "--out", str(out),
+                 *extra]) == 2
+    err = capsys.readouterr().err
+    assert f"all {n_frames} frame(s) of the input would become the no-load baseline" in err
+    assert "--baseline" in err and "--baseline-frames 0" in err
+    assert not out.exists() and not list(tmp_path.glob("*.partial*")) and not list(tmp_path.glob(".*"))
+    # with a baseline, or baseline_frames=0 stated, the same frames are measured
+    np.save(tmp_path / "base.npy", frames[0])
+    assert main(["process", str(tmp_path / "s.npy"), "--calibration", str(cal_path), "--out", str(out),
+                 "--baseline", str(tmp_path / "base.npy")]) == 0
+    fz = np.array([float(r["fz"]) for r in read_csv(out)]).reshape(n_frames, 41)
+    assert (fz[-1, list(SPOTS)] > 0).all()
+    assert main(["process", str(tmp_path / "s.npy"), "--out", str(out), "--baseline-frames", "0"]) == 0
+
+
+def test_a_nan_frame_is_named_by_its_file_and_index(tmp_path, frames):
+    """Per-frame errors name the file and the frame's index within it, not its place in a batch."""
+    from optitact.batch import process_files
+
+    np.save(tmp_path / "a.npy", frames.astype(np.float32))
+    bad = np.repeat(frames[1:2].astype(np.float32), 60, axis=0)
+    bad[50, 7, 9] = np.nan
+    np.save(tmp_path / "b.npy", bad)
+    pipe = optitact.Pipeline(SENSOR, CAM)
+    with pytest.raises(InputError, match=r"^b\.npy, frame 50: the frame must be finite, got nan at pixel "
+                                         r"\(row 7, col 9\)$"):
+        process_files([tmp_path / "a.npy", tmp_path / "b.npy"], pipeline=pipe, batch=32)
+    bad[50, 7, 9] = 0.0
+    np.save(tmp_path / "b.npy", bad)
+    np.save(tmp_path / "c.npy", np.zeros((2, 60, 80), np.float32))  # wrong size, second frame of its file
+    with pytest.raises(InputError, match=r"^c\.npy, frame 0: expected a 120x160 frame"):
+        process_files([tmp_path / "a.npy", tmp_path / "b.npy", tmp_path / "c.npy"], pipeline=pipe)
+    # a NaN in the baseline frames is named too
+    with pytest.raises(InputError, match=r"^b\.npy, frame 50: the frame must be finite"):
+        bad[50, 7, 9] = np.inf
+        np.save(tmp_path / "b.npy", bad)
+        process_files([tmp_path / "b.npy"], pipeline=pipe, baseline_frames=52)
+
+
+@pytest.mark.parametrize("case", ["folder", "missing_folder", "plot_folder"])
+def test_out_is_checked_before_any_work(tmp_path, frames, capsys, monkeypatch, case):
+    """--out naming a folder, or in a folder that does not exist, fails at once (nothing is read)."""
+    import optitact.frames as frames_module
+
+    cv2.imwrite(str(tmp_path / "a.png"), frames[0])
+    cv2.imwrite(str(tmp_path / "b.png"), frames[2])
+    read = []
+    real = frames_module.iter_frames
+    monkeypatch.setattr(frames_module, "iter_frames", lambda files: read.append(files) or real(files))
+    out, extra = tmp_path / "r.csv", []
+    if case == "folder":
+        out = tmp_path / "results"
+        out.mkdir()
+    elif case == "missing_folder":
+        out = tmp_path / "nope" / "r.csv"
+    else:
+        (tmp_path / "plots").mkdir()
+        extra = ["--calibration", "default", "--plot", str(tmp_path / "plots")]
+    assert main(["process", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    want = {"folder": f"--out {out} is a folder; expected the name of a file",
+            "missing_folder": f"the folder {out.parent} does not exist",
+            "plot_folder": "--plot " + str(tmp_path / "plots") + " is a folder"}[case]
+    assert err.startswith("optitact: error:") and want in err and len(err.splitlines()) == 1
+    assert read == [] and not (tmp_path / "nope").exists()
+    from optitact.batch import process_files
+
+    if case == "folder":
+        with pytest.raises(InputError, match="out: .* is a folder"):
+            process_files([tmp_path / "a.png", tmp_path / "b.png"], pipeline=optitact.Pipeline(SENSOR, CAM),
+                          out=out)

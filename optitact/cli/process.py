@@ -28,11 +28,17 @@ def add_parsers(sub) -> None:
                     "of them (sorted by name), .npy frames or stacks, or videos (OpenCV); colour "
                     "is converted to grey. The no-load baseline is --baseline, or else the mean "
                     "of the first --baseline-frames frames (default 1: the stream must start "
-                    "unloaded).")
+                    "unloaded, and at least one frame must follow). With --calibration the CSV "
+                    "also has element-local fx, fy, fz and global fx_global, fy_global, fz_global "
+                    "(N) per element, and READINGS.per_frame.csv beside it has one row per frame: "
+                    "elements in contact, total normal force, resultant (global, N) and centre of "
+                    "pressure (mm). Files appear when the run is complete; a failed run keeps the "
+                    "rows done so far as READINGS.partial.csv and says so.")
     proc.add_argument("frames", nargs="+", type=Path, metavar="FRAMES",
                       help="image files, folders, .npy stacks or video files")
     proc.add_argument("--out", type=Path, required=True, metavar="READINGS.csv",
-                      help="where to write the readings")
+                      help="the CSV file to write (its folder must exist; with --calibration also "
+                           "READINGS.per_frame.csv)")
     proc.add_argument("--baseline", type=Path, default=None, metavar="FRAME",
                       help="no-load frame (image or .npy; a .npy stack is averaged)")
     proc.add_argument("--baseline-frames", type=int_at_least(0, "an integer >= 0"), default=1,
@@ -63,9 +69,10 @@ def add_parsers(sub) -> None:
                            "(16-bit frames of 8-bit ones are read as frame / 257, other depths are "
                            "refused). Default: the calibration's, else not checked")
     proc.add_argument("--calibration", type=Path, default=None, metavar="CAL.json",
-                      help="also estimate forces with this calibration (adds fx, fy, fz, clamped "
-                           "columns); it fixes the sensor, camera and pipeline options. "
-                           "'default' uses the shipped calibration")
+                      help="also estimate forces with this calibration (adds fx, fy, fz, fx_global, "
+                           "fy_global, fz_global, clamped columns and the per-frame table); it "
+                           "fixes the sensor, camera and pipeline options. 'default' uses the "
+                           "shipped calibration")
     proc.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
                       help="with --calibration: save a force-field plot of the last frame")
     proc.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -92,12 +99,26 @@ def _load_baseline(path: Path) -> np.ndarray:
     return np.stack([f for _, f in iter_frames(expand_sources([path]))])
 
 
+def _check_out(path: Path | None, option: str) -> None:
+    """An output file's name, checked before any work: not a folder, in a folder that exists."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise InputError(f"{option} {path} is a folder; expected the name of a file to write in it "
+                         f"(e.g. {path / ('readings.csv' if option == '--out' else 'plot.png')})")
+    if not path.parent.is_dir():
+        raise InputError(f"{option} {path}: the folder {path.parent} does not exist (create it first)")
+
+
 def run_process(args) -> int:
     """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
     from optitact.batch import process_files
     from optitact.frames import expand_sources, iter_frames
+    from optitact.io import per_frame_path
     from optitact.pipeline import Pipeline
 
+    _check_out(args.out, "--out")
+    _check_out(args.plot, "--plot")
     files = expand_sources(args.frames)
     first = next(iter_frames(files[:1]), None)
     if first is None:
@@ -149,7 +170,8 @@ def run_process(args) -> int:
         field.save_plot(args.plot, done.last_frame, camera, title="estimated forces (last frame)")
         print(f"optitact: wrote the force-field plot of the last frame to {args.plot}", file=sys.stderr)
     where = "on the cluster" if args.scheduler is not None else "here"
-    print(f"optitact: wrote {'forces' if cal else 'readings'} of {done.n_frames} frames to {args.out} "
+    also = f" and per-frame resultants to {per_frame_path(args.out)}" if cal else ""
+    print(f"optitact: wrote {'forces' if cal else 'readings'} of {done.n_frames} frames to {args.out}{also} "
           f"({done.n_frames / max(done.seconds, 1e-9):.0f} frames/s {where}, including reading)",
           file=sys.stderr)
     return 0
