@@ -115,7 +115,7 @@ def _load_npy(f: Path) -> np.ndarray:
     try:
         arr = np.load(f, mmap_mode="r", allow_pickle=False)
     except (ValueError, EOFError, SyntaxError) as exc:
-        if "allow_pickle" in str(exc):
+        if "allow_pickle" in str(exc) or "Python objects" in str(exc):
             raise InputError(f"{f}: holds Python objects, not grey levels") from None
         raise InputError(f"{f}: truncated or corrupt .npy file (numpy could not read it: "
                          f"{str(exc).splitlines()[0][:120]})") from None
