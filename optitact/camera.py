@@ -31,10 +31,11 @@ __all__ = ["FisheyeCamera", "MAX_FRAME_PIXELS", "RadialMap", "check_frame_size",
 SURFACE_TOLERANCE = 1e-4
 
 #: Largest image (width x height, pixels) a camera or a frame may have: 4096 x 4096. The
-#: pipeline's set-up grows with the pixels of the element regions (about 90 bytes per image
-#: pixel while it runs, about 55 kept, for a full-field camera: 0.5 GiB at 2560 x 1920, 1.6 GiB
-#: at 4096 x 4096), so a bigger frame is refused before anything is allocated. Override with
-#: the environment variable ``OPTITACT_MAX_FRAME_PIXELS`` (an integer number of pixels).
+#: pipeline's set-up grows with the pixels of the element regions: for a full-field camera about
+#: 70 bytes per image pixel at its peak and 55 kept (cached per camera; 20 MiB at 640 x 480,
+#: 0.3 GiB at 2560 x 1920, about 1.4 GiB at 4096 x 4096), so a bigger frame is refused before
+#: anything is allocated. Override with the environment variable ``OPTITACT_MAX_FRAME_PIXELS``
+#: (an integer number of pixels).
 MAX_FRAME_PIXELS = 4096 * 4096
 _MAX_PIXELS_ENV = "OPTITACT_MAX_FRAME_PIXELS"
 
@@ -65,7 +66,7 @@ def check_frame_size(width: int, height: int, source: str = "frame") -> None:
         raise InputError(
             f"{source}: frame too large: {width}x{height} = {int(width) * int(height):,} pixels, more than "
             f"the {limit:,} this camera model accepts (optitact.camera.MAX_FRAME_PIXELS; the set-up "
-            f"needs about 90 bytes per pixel); downsample the frames, or set {_MAX_PIXELS_ENV} to "
+            f"needs about 70 bytes per pixel); downsample the frames, or set {_MAX_PIXELS_ENV} to "
             f"allow more")
 
 
