@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
 
@@ -23,10 +24,50 @@ from ._validate import check_keys, check_type, finite, integer, positive, real_a
 from .errors import InputError
 from .sensor import DomeSensor
 
-__all__ = ["FisheyeCamera", "RadialMap", "pixel_from_dome", "dome_from_pixel", "radial_map"]
+__all__ = ["FisheyeCamera", "MAX_FRAME_PIXELS", "RadialMap", "check_frame_size", "pixel_from_dome",
+           "dome_from_pixel", "radial_map"]
 
 #: Largest distance (mm) a point given to :func:`pixel_from_dome` may lie off the outer surface.
 SURFACE_TOLERANCE = 1e-4
+
+#: Largest image (width x height, pixels) a camera or a frame may have: 4096 x 4096. The
+#: pipeline's set-up grows with the pixels of the element regions: for a full-field camera about
+#: 70 bytes per image pixel at its peak and 55 kept (cached per camera; 20 MiB at 640 x 480,
+#: 0.3 GiB at 2560 x 1920, about 1.4 GiB at 4096 x 4096), so a bigger frame is refused before
+#: anything is allocated. Override with the environment variable ``OPTITACT_MAX_FRAME_PIXELS``
+#: (an integer number of pixels).
+MAX_FRAME_PIXELS = 4096 * 4096
+_MAX_PIXELS_ENV = "OPTITACT_MAX_FRAME_PIXELS"
+
+
+def check_frame_size(width: int, height: int, source: str = "frame") -> None:
+    """Refuse an image of more than :data:`MAX_FRAME_PIXELS` pixels (or the environment's limit).
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels.
+    source : str
+        What the size belongs to (a file name, ``"camera"``), for the message.
+
+    Raises
+    ------
+    InputError
+        For a larger image, naming the limit and how to raise it.
+    """
+    limit = MAX_FRAME_PIXELS
+    text = os.environ.get(_MAX_PIXELS_ENV)
+    if text:
+        try:
+            limit = int(text)
+        except ValueError:
+            raise InputError(f"{_MAX_PIXELS_ENV} must be an integer number of pixels, got {text!r}") from None
+    if int(width) * int(height) > limit:
+        raise InputError(
+            f"{source}: frame too large: {width}x{height} = {int(width) * int(height):,} pixels, more than "
+            f"the {limit:,} this camera model accepts (optitact.camera.MAX_FRAME_PIXELS; the set-up "
+            f"needs about 70 bytes per pixel); downsample the frames, or set {_MAX_PIXELS_ENV} to "
+            f"allow more")
 
 
 @dataclass(frozen=True)
@@ -36,7 +77,11 @@ class FisheyeCamera:
     Parameters
     ----------
     width, height : int
-        Image size in pixels, default 640 x 480.
+        Image size in pixels, default 640 x 480; at least 2 each and at most
+        :data:`MAX_FRAME_PIXELS` in all (see :func:`check_frame_size`). The
+        pipeline needs more than 2: too small a frame for the sensor is
+        refused by :func:`optitact.regions.split_regions` ("frame too
+        small", naming the minimum).
     fov_deg : float
         Full field of view across the image's shorter side (deg), default 140;
         the image circle of that field touches the shorter sides.
@@ -61,6 +106,7 @@ class FisheyeCamera:
     def __post_init__(self) -> None:
         object.__setattr__(self, "width", integer(self.width, "width", minimum=2))
         object.__setattr__(self, "height", integer(self.height, "height", minimum=2))
+        check_frame_size(self.width, self.height, "camera")
         object.__setattr__(self, "fov_deg", positive(self.fov_deg, "fov_deg"))
         if self.fov_deg >= 360.0:
             raise InputError(f"fov_deg must be in (0, 360), got {self.fov_deg}")

@@ -3,27 +3,84 @@
 Every source yields ``(source, frame)`` pairs, frames as 2-D greyscale arrays
 in their own dtype (8- or 16-bit images stay 8- or 16-bit; colour images and
 video frames are converted to grey with OpenCV's BGR-to-grey weights).
+
+Lossy and truncated sources
+---------------------------
+Force estimation reads grey levels, so lossy compression biases it: the same
+frames stored as Motion JPEG read about 0.71 N where the lossless frames read
+0.63 N (truth 0.6 N). Reading a video whose codec is not a known lossless one
+(:data:`LOSSLESS_CODECS`: FFV1, PNG, HuffYUV, raw, ...; MJPG, H.264, MPEG-4,
+VP9 ... are lossy) or a lossy image (JPEG, lossy WebP) warns once per file
+(:class:`FramesWarning`). A video that ends before the frame count its header
+announces (a cut or truncated recording) warns with both counts.
+
+Frame size
+----------
+A frame's size is checked against :data:`optitact.camera.MAX_FRAME_PIXELS`
+before its pixels are read (from the PNG, JPEG, BMP or WebP header, the
+video's properties or the ``.npy`` header), so a huge image is refused with
+a clear :class:`~optitact.errors.InputError` instead of filling the memory.
 """
 
 from __future__ import annotations
 
 import os
+import struct
+import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from .camera import check_frame_size
 from .errors import InputError, ShapeError
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "expand_sources", "count_frames", "iter_frames"]
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "expand_sources",
+           "count_frames", "iter_frames"]
 
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm")
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".wmv", ".mpg", ".mpeg")
 _ARRAY_SUFFIXES = (".npy",)
+
+#: Video codecs (FOURCC, lower case, spaces stripped; "" is raw video) that store frames exactly.
+LOSSLESS_CODECS = frozenset({
+    "", "raw", "dib", "rgba", "bgra", "rgb", "y800", "y8", "y16", "grey", "gray",  # uncompressed
+    "ffv1", "ffvh", "hfyu", "png", "mpng", "lags", "magy", "zlib", "mszh",  # lossless coders
+    "ulrg", "ulra", "uly0", "uly2", "uly4", "ulh0", "ulh2", "ulh4",  # Ut Video
+})
+_LOSSY_NAMES = {"mjpg": "Motion JPEG", "avc1": "H.264", "h264": "H.264", "x264": "H.264",
+                "hevc": "H.265", "hvc1": "H.265", "hev1": "H.265", "h265": "H.265",
+                "fmp4": "MPEG-4", "mp4v": "MPEG-4", "xvid": "MPEG-4", "divx": "MPEG-4",
+                "dx50": "MPEG-4", "mp42": "MPEG-4", "mp43": "MPEG-4", "vp80": "VP8", "vp90": "VP9",
+                "vp08": "VP8", "vp09": "VP9", "av01": "AV1", "mpg1": "MPEG-1", "mpg2": "MPEG-2",
+                "wmv3": "WMV", "wmv2": "WMV"}
+
+
+class FramesWarning(UserWarning):
+    """Frames that can be read but may give wrong forces: lossy compression, a truncated video."""
+
+
+#: Files already warned about as lossy in this process: (path, size, mtime_ns).
+_WARNED: set = set()
+
+
+def _warn_once(f: Path, message: str) -> None:
+    try:
+        st = f.stat()
+        key = (str(f.resolve()), st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = (str(f), None, None)
+    if key not in _WARNED:
+        _WARNED.add(key)
+        warnings.warn(message, FramesWarning, stacklevel=3)
 
 
 def expand_sources(paths: Sequence[str | os.PathLike]) -> list[Path]:
     """Files to read, in order: each path as given, a folder as its sorted frame files.
+
+    Lossy files are accepted (a warning comes when they are read, see
+    :func:`iter_frames`); record frames for force estimation as PNG/TIFF or
+    with a lossless video codec (FFV1, PNG, raw).
 
     Raises
     ------
@@ -53,13 +110,32 @@ def expand_sources(paths: Sequence[str | os.PathLike]) -> list[Path]:
     return out
 
 
+def _load_npy(f: Path) -> np.ndarray:
+    """The ``.npy`` file memory-mapped, checked to hold a frame (H, W) or a stack (T, H, W)."""
+    try:
+        arr = np.load(f, mmap_mode="r", allow_pickle=False)
+    except (ValueError, EOFError, SyntaxError) as exc:
+        if "allow_pickle" in str(exc) or "Python objects" in str(exc):
+            raise InputError(f"{f}: holds Python objects, not grey levels") from None
+        raise InputError(f"{f}: truncated or corrupt .npy file (numpy could not read it: "
+                         f"{str(exc).splitlines()[0][:120]})") from None
+    if arr.ndim not in (2, 3):
+        raise ShapeError(f"{f}: wrong shape: expected (H, W) or (T, H, W), got {arr.shape}")
+    check_frame_size(arr.shape[-1], arr.shape[-2], str(f))
+    return arr
+
+
 def count_frames(files: Sequence[Path]) -> int | None:
-    """Number of frames in the files, or None when a video does not say."""
+    """Number of frames in the files, or None when a video does not say.
+
+    A video's count is the one its header announces; :func:`iter_frames`
+    warns when fewer frames can be read.
+    """
     total = 0
     for f in files:
         suffix = f.suffix.lower()
         if suffix in _ARRAY_SUFFIXES:
-            arr = np.load(f, mmap_mode="r")
+            arr = _load_npy(f)
             total += 1 if arr.ndim == 2 else arr.shape[0]
         elif suffix in VIDEO_SUFFIXES:
             import cv2
@@ -88,43 +164,116 @@ def _grey(img: np.ndarray, source: str) -> np.ndarray:
     raise ShapeError(f"{source}: expected a greyscale or colour image, got shape {img.shape}")
 
 
+def _jpeg_size(head: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's first start-of-frame marker, if within ``head``."""
+    i = 2
+    while i + 9 <= len(head) and head[i] == 0xFF:
+        marker = head[i + 1]
+        length = struct.unpack(">H", head[i + 2:i + 4])[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            h, w = struct.unpack(">HH", head[i + 5:i + 9])
+            return w, h
+        i += 2 + length
+    return None
+
+
+def _image_header(f: Path) -> tuple[tuple[int, int] | None, str | None]:
+    """``((width, height) or None, lossy format name or None)`` from an image file's header."""
+    with open(f, "rb") as fh:
+        head = fh.read(65536)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24]), None
+    if head[:2] == b"BM" and len(head) >= 26:
+        w, h = struct.unpack("<ii", head[18:26])
+        return (abs(w), abs(h)), None
+    if head[:3] == b"\xff\xd8\xff":
+        return _jpeg_size(head), "JPEG"
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        lossy = b"VP8 " in head[12:]  # a lossy (VP8) bitstream, alone or inside a VP8X container
+        return None, "lossy WebP" if lossy else None
+    return None, None
+
+
 def iter_frames(files: Sequence[Path]) -> Iterator[tuple[str, np.ndarray]]:
     """Yield ``(source, frame)`` for every frame of the files, in order.
 
     ``source`` is the file name, with ``#k`` appended for frame ``k`` of a
     stack or video.
+
+    Warns
+    -----
+    FramesWarning
+        Once per file for a lossy source (a JPEG or lossy WebP image, a video
+        whose codec, read from its FOURCC, is not in :data:`LOSSLESS_CODECS`):
+        compression changes grey levels and biases the forces estimated from
+        them. And when a video ends before the frame count its header
+        announces (naming the file and both counts).
+
+    Raises
+    ------
+    InputError
+        For an unreadable, truncated or corrupt file, or a frame larger than
+        :data:`optitact.camera.MAX_FRAME_PIXELS` (checked from the header,
+        before the pixels are read).
+    ShapeError
+        For a ``.npy`` file that is not (H, W) or (T, H, W).
     """
     import cv2
 
     for f in files:
         suffix = f.suffix.lower()
         if suffix in _ARRAY_SUFFIXES:
-            arr = np.load(f, mmap_mode="r", allow_pickle=False)
+            arr = _load_npy(f)
             if arr.ndim == 2:
                 yield f.name, np.asarray(arr)
-            elif arr.ndim == 3:
+            else:
                 for k in range(arr.shape[0]):
                     yield f"{f.name}#{k}", np.asarray(arr[k])
-            else:
-                raise ShapeError(f"{f}: expected a frame (H, W) or stack (T, H, W), got {arr.shape}")
         elif suffix in VIDEO_SUFFIXES:
-            cap = cv2.VideoCapture(str(f))
-            if not cap.isOpened():
-                raise InputError(f"{f}: OpenCV cannot open this video")
-            k = 0
-            try:
-                while True:
-                    ok, img = cap.read()
-                    if not ok:
-                        break
-                    yield f"{f.name}#{k}", _grey(img, f"{f}#{k}")
-                    k += 1
-            finally:
-                cap.release()
-            if k == 0:
-                raise InputError(f"{f}: the video has no readable frames")
+            yield from _video_frames(f, cv2)
         else:
+            size, lossy = _image_header(f)
+            if size is not None:
+                check_frame_size(size[0], size[1], str(f))
+            if lossy is not None:
+                _warn_once(f, f"{f}: {lossy} is a lossy format: compression changes the grey levels "
+                              f"and biases the estimated forces; use PNG or TIFF frames")
             img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise InputError(f"{f}: OpenCV cannot read this image")
             yield f.name, _grey(img, str(f))
+
+
+def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
+    """The frames of one video, with the lossy-codec and truncation warnings of :func:`iter_frames`."""
+    cap = cv2.VideoCapture(str(f))
+    if not cap.isOpened():
+        raise InputError(f"{f}: OpenCV cannot open this video (unknown format, or a truncated or "
+                         f"corrupt file)")
+    k = 0
+    try:
+        check_frame_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
+                         str(f))
+        announced = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
+        codec = fourcc.to_bytes(4, "little").decode("latin-1")
+        name = codec.strip(" \0").lower()
+        if name not in LOSSLESS_CODECS:
+            what = (f"is lossy ({_LOSSY_NAMES[name]})" if name in _LOSSY_NAMES
+                    else "is not known to be lossless")
+            _warn_once(f, f"{f}: video codec {codec.strip(chr(0))!r} {what}: compression changes the "
+                          f"grey levels and biases the estimated forces; record with a lossless "
+                          f"codec (FFV1, PNG, raw)")
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            yield f"{f.name}#{k}", _grey(img, f"{f}#{k}")
+            k += 1
+    finally:
+        cap.release()
+    if k == 0:
+        raise InputError(f"{f}: the video has no readable frames")
+    if 0 < k < announced:
+        warnings.warn(f"{f}: read {k} of the {announced} frames its header announces; the video "
+                      f"is truncated or corrupt after frame {k - 1}", FramesWarning, stacklevel=3)

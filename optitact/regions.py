@@ -159,6 +159,12 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
                          f"{math.pi * sensor.outer_radius:g} mm, got {radius!r}")
     if grid_mm is None:
         grid_mm = _smallest_footprint(sensor, camera, radius) / OVERSAMPLE
+        if grid_mm > radius:  # a pixel spans more than the region: the footprint scales as 1 / side
+            side = min(camera.shape)
+            raise InputError(
+                f"frame too small: a {camera.width}x{camera.height} frame cannot resolve the element "
+                f"regions; this sensor and camera (fov {camera.fov_deg:g} deg) need at least "
+                f"{math.ceil(side * grid_mm / radius)} pixels on the shorter side")
     grid_mm = positive(grid_mm, "grid_mm")
     if grid_mm > radius:
         raise InputError(f"grid_mm must be at most the region radius {radius:g} mm, got {grid_mm!r}")
@@ -172,14 +178,21 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     rho = np.hypot(gx, gy)
     n_el = sensor.n_elements
     r_out = sensor.outer_radius
-    pts = sensor.dome_point(np.arange(n_el)[:, None, None], offsets[None])  # (E, n, n, 3)
     normals = sensor.element_frames[:, 2, :]
-    nearest = np.argmax(np.einsum("eijk,fk->eijf", pts, normals), axis=-1)
-    theta = np.arccos(np.clip(pts[..., 2] / r_out, -1.0, 1.0))
-    mask = ((rho <= radius)[None] & (nearest == np.arange(n_el)[:, None, None])
-            & (theta <= camera.max_polar_angle(sensor)))
+    theta_max = camera.max_polar_angle(sensor)
+    mask = np.zeros((n_el,) + rho.shape, bool)
+    within = np.flatnonzero(rho <= radius)
     pixels = np.full(mask.shape + (2,), -10.0)
-    pixels[mask] = camera.project(pts[mask], sensor)
+    # One element at a time, over the cells within the radius: the temporaries stay a few times
+    # one element's grid (all elements' products at once took 3 GB at 2560 x 1920).
+    for e in range(n_el):
+        pts = sensor.dome_point(np.full(len(within), e), offsets.reshape(-1, 2)[within])  # (m, 3)
+        nearest = np.argmax(np.einsum("ik,fk->if", pts, normals), axis=-1)
+        theta = np.arccos(np.clip(pts[:, 2] / r_out, -1.0, 1.0))
+        keep = (nearest == e) & (theta <= theta_max)
+        mask[e].reshape(-1)[within[keep]] = True
+        if keep.any():
+            pixels[e].reshape(-1, 2)[within[keep]] = camera.project(pts[keep], sensor)
     h, w = camera.shape
     inside = ((pixels[..., 0] >= 0) & (pixels[..., 0] <= h - 1)
               & (pixels[..., 1] >= 0) & (pixels[..., 1] <= w - 1))
@@ -290,6 +303,30 @@ class RegionWeights:
         return self.pixel[keep], self.label[keep]
 
 
+def _element_weights(grids: RegionGrids, e: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Element ``e``'s part of :func:`region_weights`: sorted keys ``pixel * E + e`` and (3, n) weights.
+
+    Contributions to one pixel are summed in the order (corner, cell), the
+    same as when all elements are folded at once.
+    """
+    i_idx, j_idx = np.nonzero(grids.mask[e])
+    rc = grids.pixels[e, i_idx, j_idx]
+    a = grids.area[e, i_idx, j_idx]
+    x, y = grids.coords[j_idx], grids.coords[i_idx]
+    r0 = np.minimum(np.floor(rc[:, 0]).astype(np.int64), h - 2)
+    c0 = np.minimum(np.floor(rc[:, 1]).astype(np.int64), w - 2)
+    fr, fc = rc[:, 0] - r0, rc[:, 1] - c0
+    pix, bw = [], []
+    for dr, dc, wt in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                       (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        keep = wt > 0
+        pix.append((r0[keep] + dr) * w + c0[keep] + dc)
+        bw.append(np.stack([wt * a, wt * a * x, wt * a * y])[:, keep])
+    pix, bw = np.concatenate(pix), np.concatenate(bw, axis=1)
+    keys, inverse = np.unique(pix * grids.n_elements + e, return_inverse=True)
+    return keys, np.stack([np.bincount(inverse, bw[k], minlength=len(keys)) for k in range(3)])
+
+
 @lru_cache(maxsize=8)
 def region_weights(grids: RegionGrids, shape: tuple[int, int]) -> RegionWeights:
     """Fold bilinear dewarp weights, cell areas and cell coordinates into per-pixel weights.
@@ -311,24 +348,12 @@ def region_weights(grids: RegionGrids, shape: tuple[int, int]) -> RegionWeights:
     RegionWeights
     """
     h, w = shape
-    e_idx, i_idx, j_idx = np.nonzero(grids.mask)
-    rc = grids.pixels[e_idx, i_idx, j_idx]
-    a = grids.area[e_idx, i_idx, j_idx]
-    x, y = grids.coords[j_idx], grids.coords[i_idx]
-    r0 = np.minimum(np.floor(rc[:, 0]).astype(np.int64), h - 2)
-    c0 = np.minimum(np.floor(rc[:, 1]).astype(np.int64), w - 2)
-    fr, fc = rc[:, 0] - r0, rc[:, 1] - c0
-    pix, ele, bw = [], [], []
-    for dr, dc, wt in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
-                       (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
-        keep = wt > 0
-        pix.append((r0[keep] + dr) * w + c0[keep] + dc)
-        ele.append(e_idx[keep])
-        bw.append(np.stack([wt * a, wt * a * x, wt * a * y])[:, keep])
-    pix, ele, bw = np.concatenate(pix), np.concatenate(ele), np.concatenate(bw, axis=1)
     n_el = grids.n_elements
-    keys, inverse = np.unique(pix * n_el + ele, return_inverse=True)
-    weights = np.stack([np.bincount(inverse, bw[k], minlength=len(keys)) for k in range(3)])
+    parts = [_element_weights(grids, e, h, w) for e in range(n_el)]  # one element at a time
+    keys = np.concatenate([k for k, _ in parts])
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    weights = np.concatenate([wt for _, wt in parts], axis=1)[:, order]
     pixel, label = np.divmod(keys, n_el)
     n_pix = np.bincount(label, minlength=n_el)
     region_area = np.bincount(label, weights[0], minlength=n_el)

@@ -1,0 +1,206 @@
+"""Frame files (optitact.frames): lossy and truncated sources, bad .npy files, frame sizes."""
+
+import re
+import struct
+import tracemalloc
+import warnings
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from optitact import DomeSensor, FisheyeCamera, Pipeline
+from optitact.camera import MAX_FRAME_PIXELS
+from optitact.cli import main
+from optitact.errors import InputError, ShapeError
+from optitact.frames import FramesWarning, count_frames, expand_sources, iter_frames
+from optitact.regions import region_weights, split_regions
+
+W, H = 64, 48
+N_FRAMES = 40
+
+
+def _frames(n=N_FRAMES):
+    rng = np.random.default_rng(3)
+    return [rng.integers(0, 60, (H, W), dtype=np.uint8) for _ in range(n)]
+
+
+def _video(path, fourcc, frames):
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10, (W, H), False)
+    assert vw.isOpened()
+    for f in frames:
+        vw.write(f)
+    vw.release()
+    return path
+
+
+def _read_quietly(path):
+    """Frames of a file, failing on any warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return [f for _, f in iter_frames(expand_sources([path]))]
+
+
+# ---------------------------------------------------------------------------- lossy sources
+@pytest.mark.parametrize("fourcc, suffix, name", [("MJPG", ".avi", "Motion JPEG"), ("mp4v", ".mp4", "MPEG-4")])
+def test_lossy_video_warns_once_per_file(tmp_path, fourcc, suffix, name):
+    path = _video(tmp_path / f"clip{suffix}", fourcc, _frames(3))
+    with pytest.warns(FramesWarning, match=rf"clip{suffix}: video codec .* is lossy \({name}\)") as rec:
+        got = [f for _, f in iter_frames([path])]
+    assert len(got) == 3 and len(rec) == 1
+    assert len(_read_quietly(path)) == 3  # once per file: a second read is silent
+
+
+def test_lossless_video_and_png_read_exactly_without_warning(tmp_path):
+    frames = _frames(3)
+    path = _video(tmp_path / "clip.avi", "FFV1", frames)
+    got = _read_quietly(path)
+    np.testing.assert_array_equal(np.stack(got), np.stack(frames))
+    cv2.imwrite(str(tmp_path / "f.png"), frames[0])
+    np.testing.assert_array_equal(_read_quietly(tmp_path / "f.png")[0], frames[0])
+
+
+def test_lossy_images_warn(tmp_path):
+    frame = _frames(1)[0]
+    cv2.imwrite(str(tmp_path / "f.jpg"), frame)
+    with pytest.warns(FramesWarning, match=r"f\.jpg: JPEG is a lossy format"):
+        [(name, got)] = list(iter_frames([tmp_path / "f.jpg"]))
+    assert name == "f.jpg" and got.shape == (H, W)
+    cv2.imwrite(str(tmp_path / "lossy.webp"), frame, [cv2.IMWRITE_WEBP_QUALITY, 80])
+    with pytest.warns(FramesWarning, match=r"lossy\.webp: lossy WebP is a lossy format"):
+        list(iter_frames(expand_sources([tmp_path / "lossy.webp"])))
+    cv2.imwrite(str(tmp_path / "exact.webp"), frame, [cv2.IMWRITE_WEBP_QUALITY, 101])  # lossless
+    np.testing.assert_array_equal(_read_quietly(tmp_path / "exact.webp")[0], frame)
+
+
+# ---------------------------------------------------------------------------- truncated videos
+@pytest.mark.parametrize("fourcc", ["FFV1", "MJPG"])
+@pytest.mark.parametrize("fraction", [0.5, 0.95])
+def test_truncated_video_reports_frames_read_against_announced(tmp_path, fourcc, fraction):
+    full = _video(tmp_path / "full.avi", fourcc, _frames())
+    cut = tmp_path / "cut.avi"
+    data = full.read_bytes()
+    cut.write_bytes(data[:int(len(data) * fraction)])
+    assert count_frames([cut]) == N_FRAMES  # the header still announces them all
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        n_read = sum(1 for _ in iter_frames([cut]))
+    assert 0 < n_read < N_FRAMES
+    truncated = [str(w.message) for w in rec if "announces" in str(w.message)]
+    assert truncated == [f"{cut}: read {n_read} of the {N_FRAMES} frames its header announces; the video "
+                         f"is truncated or corrupt after frame {n_read - 1}"]
+    assert all(issubclass(w.category, FramesWarning) for w in rec)
+
+
+def test_whole_video_has_no_truncation_warning(tmp_path):
+    assert len(_read_quietly(_video(tmp_path / "full.avi", "FFV1", _frames()))) == N_FRAMES
+
+
+def test_process_cli_reports_a_truncated_video(tmp_path):
+    full = _video(tmp_path / "full.avi", "FFV1", _frames())
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(full.read_bytes()[:len(full.read_bytes()) // 2])
+    with pytest.warns(FramesWarning, match=r"cut\.avi: read \d+ of the 40 frames"):
+        assert main(["process", str(cut), "--out", str(tmp_path / "r.csv")]) == 0
+
+
+# ---------------------------------------------------------------------------- bad .npy files
+@pytest.mark.parametrize("cut", [9, 20, 40, 60, 100, 127, 200])
+def test_truncated_npy_is_named_as_such(tmp_path, cut):
+    good = tmp_path / "good.npy"
+    np.save(good, np.zeros((3, H, W), np.uint8))
+    bad = tmp_path / "bad.npy"
+    bad.write_bytes(good.read_bytes()[:cut])
+    want = re.escape(f"{bad}: truncated or corrupt .npy file")
+    with pytest.raises(InputError, match=want):
+        list(iter_frames([bad]))
+    with pytest.raises(InputError, match=want):
+        count_frames([bad])
+
+
+def test_npy_of_python_objects_is_refused(tmp_path):
+    path = tmp_path / "obj.npy"
+    np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(InputError, match="obj.npy: holds Python objects"):
+        list(iter_frames([path]))
+
+
+@pytest.mark.parametrize("shape", [(), (100,), (2, 3, H, W), (1, 2, 3, 4, 5)])
+def test_npy_of_the_wrong_shape(tmp_path, shape, capsys):
+    path = tmp_path / "x.npy"
+    np.save(path, np.zeros(shape, np.uint8))
+    want = re.escape(f"{path}: wrong shape: expected (H, W) or (T, H, W), got {shape}")
+    with pytest.raises(ShapeError, match=want):
+        list(iter_frames([path]))
+    with pytest.raises(ShapeError, match=want):
+        count_frames([path])
+    assert main(["process", str(path), "--out", str(tmp_path / "r.csv")]) == 2
+    assert "wrong shape" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- frame size
+def test_too_small_frame_names_the_minimum(tmp_path, capsys):
+    sensor = DomeSensor.default()
+    with pytest.raises(InputError, match=r"frame too small: a 2x2 frame .* at least (\d+) pixels") as exc:
+        Pipeline(sensor, FisheyeCamera(width=2, height=2))
+    need = int(re.search(r"at least (\d+) pixels", str(exc.value)).group(1))
+    # the minimum is exact: a camera of that shorter side builds its regions, one pixel less cannot
+    assert split_regions(sensor, FisheyeCamera(width=need + 3, height=need)).mask.any(axis=(1, 2)).all()
+    with pytest.raises(InputError, match=f"frame too small.*at least {need} pixels"):
+        split_regions(sensor, FisheyeCamera(width=need + 3, height=need - 1))
+    cv2.imwrite(str(tmp_path / "tiny.png"), np.zeros((2, 2), np.uint8))
+    assert main(["process", str(tmp_path / "tiny.png"), "--out", str(tmp_path / "r.csv")]) == 2
+    assert "frame too small" in capsys.readouterr().err
+
+
+def _png_header_only(path, width, height):
+    """A PNG whose header says width x height, with no pixels: reading them would fail."""
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    chunk = b"IHDR" + ihdr
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + chunk
+                     + struct.pack(">I", zlib.crc32(chunk)))
+    return path
+
+
+def test_huge_frame_is_refused_before_reading(tmp_path, monkeypatch, capsys):
+    big = _png_header_only(tmp_path / "big.png", 8000, 8000)
+    monkeypatch.setattr(cv2, "imread", lambda *a, **k: pytest.fail("the pixels were read"))
+    with pytest.raises(InputError, match=r"big\.png: frame too large: 8000x8000 .* OPTITACT_MAX_FRAME_PIXELS"):
+        list(iter_frames([big]))
+    assert main(["process", str(big), "--out", str(tmp_path / "r.csv")]) == 2
+    assert "frame too large" in capsys.readouterr().err
+    with pytest.raises(InputError, match="camera: frame too large: 8000x8000"):
+        FisheyeCamera(width=8000, height=8000)
+    assert FisheyeCamera(width=4096, height=MAX_FRAME_PIXELS // 4096).shape == (4096, 4096)
+
+
+def test_frame_size_limit_can_be_changed(tmp_path, monkeypatch):
+    cv2.imwrite(str(tmp_path / "f.png"), _frames(1)[0])
+    np.save(tmp_path / "s.npy", np.zeros((2, H, W), np.uint8))
+    video = _video(tmp_path / "clip.avi", "FFV1", _frames(2))
+    monkeypatch.setenv("OPTITACT_MAX_FRAME_PIXELS", str(W * H - 1))
+    for path in (tmp_path / "f.png", tmp_path / "s.npy", video):
+        with pytest.raises(InputError, match=f"frame too large: {W}x{H} = 3,072 pixels, more than the 3,071"):
+            list(iter_frames([path]))
+    monkeypatch.setenv("OPTITACT_MAX_FRAME_PIXELS", str(W * H))
+    assert len(list(iter_frames([tmp_path / "f.png", tmp_path / "s.npy", video]))) == 5
+    monkeypatch.setenv("OPTITACT_MAX_FRAME_PIXELS", "lots")
+    with pytest.raises(InputError, match="OPTITACT_MAX_FRAME_PIXELS must be an integer"):
+        FisheyeCamera()
+
+
+def test_region_precompute_memory_stays_near_what_it_keeps():
+    # A camera no other test uses (no cache hit). The set-up used to hold the dot products of
+    # every grid cell with all 41 element normals at once: a peak of 13x what it keeps here.
+    sensor, cam = DomeSensor.default(), FisheyeCamera(width=160, height=120, fov_deg=141.0)
+    tracemalloc.start()
+    try:
+        grids = split_regions(sensor, cam)
+        weights = region_weights(grids, cam.shape)
+        kept, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    held = sum(a.nbytes for a in (grids.pixels, grids.area, grids.mask, weights.pixel, weights.label,
+                                  weights.weights))
+    assert held <= kept and peak <= 2.0 * held
