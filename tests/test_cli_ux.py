@@ -261,6 +261,14 @@ def test_render_writes_npy_and_creates_a_missing_folder(fake_render, forces_csv,
     (["bench", "render", "--plot", "p.svg"], "expected a file name ending in .png"),
 ])
 def test_other_commands_check_outputs_when_parsing(fake_render, tmp_path, capsys, monkeypatch, argv, match):
+    import optitact.cli.bench as bench
+    import optitact.studies
+
+    def long_work(*args, **kwargs):
+        raise AssertionError("started the long work before checking the outputs")
+
+    monkeypatch.setattr(optitact.studies, "run", long_work)
+    monkeypatch.setattr(bench, "BENCHES", dict.fromkeys(bench.BENCHES, long_work))
     (tmp_path / "afile").write_text("x")
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as e:
