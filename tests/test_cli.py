@@ -93,7 +93,9 @@ def test_demo_writes_its_folder(tmp_path, capsys):
     assert meta["spp"] == 2 and meta["seed"] == 0
     frame = cv2.imread(str(out / "frame.png"), cv2.IMREAD_UNCHANGED)
     assert frame.shape == (48, 64) and frame.dtype == np.uint8
-    assert cv2.imread(str(out / "overlay.png")).shape == (48, 64, 3)
+    assert cv2.imread(str(out / "frame_view.png"), cv2.IMREAD_UNCHANGED).shape == (48, 64)
+    overlay = cv2.imread(str(out / "overlay.png"))
+    assert overlay.shape[1] >= 560 and overlay.shape[0] > 48 * overlay.shape[1] // 64  # enlarged, with bands
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["demo", "--help"], ["render", "--help"],
@@ -202,7 +204,8 @@ def test_bad_input_is_one_line_exit_2(monkeypatch, tmp_path, capsys, exc, code):
 
 
 def test_no_json_flag_the_output_is_json(capsys):
-    """bench and experiment print one JSON object always: there is no --json switch that does nothing."""
+    """bench prints one JSON object always: there is no --json switch that does nothing (experiment's
+    --json switches its table to the JSON object)."""
     for argv in (["bench", "pipeline", "--json"], ["bench", "render", "--json"]):
         with pytest.raises(SystemExit) as e:
             main(argv)
@@ -233,12 +236,12 @@ def fake_study(monkeypatch, tmp_path):
 
 
 def test_experiment_runs_a_registered_study(fake_study, capsys, tmp_path):
-    assert main(["experiment", "fake", "--seed", "3"]) == 0
+    assert main(["experiment", "fake", "--seed", "3", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["value"] == 4 and out["size"] == "quick" and out["seed"] == 3
     assert out["published"]["value"] == 42
     plot = tmp_path / "fake.png"
-    assert main(["experiment", "fake", "--full", "--plot", str(plot)]) == 0
+    assert main(["experiment", "fake", "--full", "--plot", str(plot), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["value"] == 10 and out["size"] == "full" and out["plot"] == str(plot)
     assert cv2.imread(str(plot)) is not None

@@ -39,7 +39,7 @@ def parser() -> argparse.ArgumentParser:
         description="Optical three-axis tactile sensing: render synthetic frames of the dome "
                     "sensor, process frames into forces.")
     p.add_argument("--version", action="version", version=f"optitact {__version__}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
     for module in (demo, process, calibrate, bench, experiment):
         module.add_parsers(sub)
     return p

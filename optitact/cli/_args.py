@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from optitact.errors import InputError
@@ -34,6 +35,66 @@ def size(text: str) -> tuple[int, int]:
     except ValueError:
         raise InputError(f"--size must look like 640x480 (WIDTHxHEIGHT), got {text!r}") from None
     return w, h
+
+
+def _writable_place(path: Path) -> str | None:
+    """Why ``path`` cannot be written as a new or replaced file or folder, or None if it can.
+
+    A missing parent folder is fine when it can be created (the writers create
+    it): the nearest existing ancestor must be a folder this user may write in.
+    """
+    parent = path.parent
+    while not parent.exists():
+        if parent == parent.parent:  # pragma: no cover - a missing filesystem root
+            return f"no folder of {path} exists"
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{parent} is a file, not a folder"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"folder {parent} is not writable"
+    return None
+
+
+def out_file(*suffixes: str):
+    """An argparse type for an output file: one of ``suffixes``, not a folder, in a writable place.
+
+    Checked when the command line is parsed, before any long work; a missing
+    parent folder is created by the writer.
+
+    Examples
+    --------
+    >>> out_file(".png", ".npy")("frame.jpg")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: expected a file name ending in .png or .npy, got 'frame.jpg'
+    """
+    accepted = " or ".join(suffixes)
+
+    def parse(text: str) -> Path:
+        path = Path(text)
+        if path.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"expected a file name ending in {accepted}, got {text!r}")
+        if path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} is a folder; expected a file name ending in {accepted}")
+        why = _writable_place(path)
+        if why is not None:
+            raise argparse.ArgumentTypeError(f"cannot write {text!r}: {why}")
+        return path
+
+    return parse
+
+
+def out_folder(text: str) -> Path:
+    """An argparse type for an output folder: an existing folder, or one that can be created."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} exists and is not a folder; name a folder (it is "
+                                         f"created if missing)")
+    why = _writable_place(path) if not path.exists() else (
+        None if os.access(path, os.W_OK | os.X_OK) else f"folder {path} is not writable")
+    if why is not None:
+        raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {why}")
+    return path
 
 
 def _parent() -> argparse.ArgumentParser:
@@ -82,7 +143,7 @@ def render_parents(*, spp: int = 64) -> list[argparse.ArgumentParser]:
 def plot_parent(help: str) -> argparse.ArgumentParser:
     """``--plot PLOT.png``."""
     p = _parent()
-    p.add_argument("--plot", type=Path, default=None, metavar="PLOT.png", help=help)
+    p.add_argument("--plot", type=out_file(".png"), default=None, metavar="PLOT.png", help=help)
     return p
 
 

@@ -11,6 +11,9 @@ from pathlib import Path
 
 from ._args import image_size_parent, plot_parent, positive_int, seed_parent, size, variant_parent
 
+#: argparse %-formats help strings (``%%`` is a literal ``%``) but prints descriptions as they are:
+#: a description must write ``%``, a help string ``%%``.
+
 __all__ = ["add_parsers"]
 
 
@@ -20,7 +23,7 @@ def add_parsers(sub) -> None:
         "bench", help="benchmarks (time side by side with error)",
         description="Benchmarks that report run time together with the error it buys; "
                     "medians over repeats in one run. Output: one JSON object on stdout.")
-    bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    bsub = bench.add_subparsers(dest="bench", required=True, metavar="BENCH", help="which benchmark")
     brender = bsub.add_parser(
         "render", parents=[image_size_parent(), variant_parent(),
                            plot_parent("save error against time (log-log) per mode")],
@@ -33,7 +36,7 @@ def add_parsers(sub) -> None:
                     "table, patches traced in closed form as emitters) at several settings, and "
                     "compare the readings with a converged reference (cached on disk after the "
                     "first run): G relative error, u error (mm) and the force error through the "
-                    "shipped calibration (%% FS). Prints the rows, the Pareto front per case, the "
+                    "shipped calibration (% FS). Prints the rows, the Pareto front per case, the "
                     "one-time costs, and the speed-up at equal error and the seconds of a "
                     "41-element frame at the target error. The first run measures the two-stage "
                     "table and the references (minutes); later runs reuse them.")
@@ -144,6 +147,10 @@ def _stability(args) -> dict:
 
 def _printing(bench):
     def run(args) -> int:
+        if getattr(args, "plot", None) is not None:  # before minutes of work, not after
+            from optitact._optional import require
+
+            require("matplotlib.figure", purpose="--plot")
         print(json.dumps(bench(args)))
         return 0
 

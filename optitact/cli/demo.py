@@ -14,12 +14,18 @@ from optitact.ccd import CCD
 from optitact.contact import Contacts, contact_patches
 from optitact.sensor import DomeSensor
 
-from ._args import render_parents
+from ._args import out_file, out_folder, render_parents
 
-__all__ = ["add_parsers", "overlay"]
+__all__ = ["add_parsers", "display_levels", "display_view", "overlay"]
 
 #: No-load frames the demo renders (once, cached) for its baseline.
 NOLOAD_FRAMES = 4
+
+#: ``display_view``: the black level is this percentile of the frame (its dark offset), white this
+#: percentile of the pixels above it (the spots), and the levels between follow this gamma.
+VIEW_BLACK_PERCENTILE = 1.0
+VIEW_WHITE_PERCENTILE = 99.0
+VIEW_GAMMA = 0.5
 
 
 def add_parsers(sub) -> None:
@@ -29,26 +35,33 @@ def add_parsers(sub) -> None:
         help="render the 41-element dome under a sample load and estimate its forces",
         description="Render the default 41-element dome under a sample indenter load on the "
                     "fastest Mitsuba variant here, apply the CCD model, read the frame with the "
-                    "pipeline and the shipped calibration, and write frame.png, overlay.png (the "
-                    "contact model's patches), forces.png (the estimated force field), "
-                    "estimated_forces.csv, radiance.npy and forces.json (true and estimated "
-                    "forces, settings, timings) into a folder, whose path is printed on stdout. "
-                    "The no-load baseline renders are cached in the user cache folder.")
-    demo.add_argument("--out", type=Path, default=Path("optitact-demo"),
-                      help="output folder (default ./optitact-demo)")
+                    "pipeline and the shipped calibration, and write frame.png (the raw frame, "
+                    "for processing), frame_view.png (the same frame brightened for viewing "
+                    "only), overlay.png (the contact model's patches), forces.png (the estimated "
+                    "force field), estimated_forces.csv, radiance.npy and forces.json (true and "
+                    "estimated forces, settings, timings) into a folder, whose path is printed on "
+                    "stdout. The no-load baseline renders are cached in the user cache folder.")
+    demo.add_argument("--out", type=out_folder, default=Path("optitact-demo"),
+                      help="output folder, created if missing (default ./optitact-demo)")
     demo.set_defaults(run=run_demo)
 
     rend = sub.add_parser(
         "render", parents=render_parents(spp=64), help="render a frame for forces given in a CSV file",
         description="Render one camera frame of the dome for element-local forces read from a "
                     "CSV file (41 rows of fx, fy, fz in N, or element, fx, fy, fz; optional "
-                    "header) and write it as PNG.")
+                    "header) and write it as PNG (or .npy). Output names are checked before "
+                    "rendering.")
     rend.add_argument("--forces", type=Path, required=True, metavar="FILE.csv",
                       help="element-local forces, one row per element")
-    rend.add_argument("--out", type=Path, required=True, metavar="FRAME.png",
-                      help="where to write the frame")
-    rend.add_argument("--radiance", type=Path, default=None, metavar="FILE.npy",
+    rend.add_argument("--out", type=out_file(".png", ".npy"), required=True, metavar="FRAME.png",
+                      help="where to write the frame: .png (lossless, 8 or 16 bit) or .npy; a missing "
+                           "folder is created")
+    rend.add_argument("--radiance", type=out_file(".npy"), default=None, metavar="FILE.npy",
                       help="also save the noiseless float32 radiance image")
+    rend.add_argument("--view", type=out_file(".png"), default=None, metavar="VIEW.png",
+                      help="also save an 8-bit copy of the frame brightened for viewing (dark "
+                           f"offset black, the brightest spots white, gamma {VIEW_GAMMA:g}); never "
+                           "use it as data")
     rend.set_defaults(run=run_render)
 
 
@@ -73,27 +86,71 @@ def _render_frame(sensor: DomeSensor, forces: np.ndarray, args) -> dict:
 
 
 
+def display_levels(frame: np.ndarray) -> tuple[float, float]:
+    """The grey levels :func:`display_view` shows as black and as white.
+
+    Black is the :data:`VIEW_BLACK_PERCENTILE` percentile of the frame (the
+    dark offset: most of a frame is unlit), white the
+    :data:`VIEW_WHITE_PERCENTILE` percentile of the pixels above black (the
+    spots), so a few bright pixels set the scale and the dark offset stays
+    black.
+    """
+    img = np.asarray(frame, dtype=np.float64)
+    lo = float(np.percentile(img, VIEW_BLACK_PERCENTILE))
+    lit = img[img > lo]
+    hi = float(np.percentile(lit, VIEW_WHITE_PERCENTILE)) if lit.size else lo + 1.0
+    return lo, max(hi, lo + 1e-12)
+
+
+def display_view(frame: np.ndarray, *, gamma: float = VIEW_GAMMA) -> np.ndarray:
+    """An 8-bit copy of ``frame`` brightened for viewing: never use it as data.
+
+    Grey levels from black to white (:func:`display_levels`) are stretched
+    to 0-255 with a power law of exponent ``gamma`` (< 1 lifts dim spots).
+    ``frame`` itself is not changed.
+
+    Examples
+    --------
+    >>> frame = np.full((4, 100), 4, np.uint8)
+    >>> frame[0, :4] = (8, 20, 68, 200)
+    >>> [round(v, 2) for v in display_levels(frame)]
+    [4.0, 196.04]
+    >>> display_view(frame)[0, :5].tolist()
+    [37, 74, 147, 255, 0]
+    """
+    lo, hi = display_levels(frame)
+    img = np.asarray(frame, dtype=np.float64)
+    return np.round(np.clip((img - lo) / (hi - lo), 0.0, 1.0) ** gamma * 255.0).astype(np.uint8)
+
+
 def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts,
-            forces: np.ndarray) -> np.ndarray:
+            forces: np.ndarray, *, title: str | None = None) -> np.ndarray:
     """BGR uint8 picture of a frame with element centres, predicted patches and shear arrows.
 
     Element centres are grey dots, the contact model's patches green
     circles (projected with the closed-form camera), and each loaded
-    element's shear a red arrow (1 mm on the dome per 0.1 N).
+    element's shear a red arrow (1 mm on the dome per 0.1 N). Small frames
+    are enlarged (nearest pixel) so the marks and text are legible; a title
+    band sits above the picture and a legend with the scales and units
+    below it.
     """
     import cv2
 
-    img = frame.astype(np.float64)
-    top = max(float(np.percentile(img, 99.9)), 1.0)
-    base = np.clip(img / top * 255.0, 0, 255).astype(np.uint8)
-    out = cv2.cvtColor(base, cv2.COLOR_GRAY2BGR)
+    h, w = frame.shape[:2]
+    s = max(1, -(-560 // w))  # integer enlargement: at least 560 px wide
+    lo, hi = display_levels(frame)
+    base = display_view(frame)
+    if s > 1:
+        base = cv2.resize(base, (w * s, h * s), interpolation=cv2.INTER_NEAREST)
+    pic = cv2.cvtColor(base, cv2.COLOR_GRAY2BGR)
+    grey, green, red = (160, 160, 160), (0, 200, 0), (0, 0, 255)
 
-    def pt(rc):
-        return (int(round(rc[1])), int(round(rc[0])))
+    def pt(rc):  # (row, col) of the frame -> (x, y) of the enlarged picture
+        return (int(round((rc[1] + 0.5) * s - 0.5)), int(round((rc[0] + 0.5) * s - 0.5)))
 
     centres = camera.project(sensor.element_positions, sensor)
     for rc in centres:
-        cv2.circle(out, pt(rc), 1, (160, 160, 160), -1, cv2.LINE_AA)
+        cv2.circle(pic, pt(rc), max(1, s // 2), grey, -1, cv2.LINE_AA)
     touching = contacts.radii > 0
     if touching.any():
         idx = np.argwhere(touching)
@@ -104,35 +161,87 @@ def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contac
                                 + contacts.slide[idx[:, 0]] + edge)
         rad_px = np.linalg.norm(camera.project(rim, sensor) - centre_px, axis=1)
         for rc, r in zip(centre_px, rad_px, strict=True):
-            cv2.circle(out, pt(rc), max(int(round(r)), 1), (0, 200, 0), 1, cv2.LINE_AA)
+            cv2.circle(pic, pt(rc), max(int(round(r * s)), 1), green, 1, cv2.LINE_AA)
     for i in np.nonzero(forces[:, 2] > 0)[0]:
         shear = forces[i, :2]
         if np.hypot(*shear) < 1e-6:
             continue
         tip = sensor.dome_point(np.array([i]), (shear * 10.0)[None, :])
-        cv2.arrowedLine(out, pt(centres[i]), pt(camera.project(tip, sensor)[0]), (0, 0, 255), 1,
+        cv2.arrowedLine(pic, pt(centres[i]), pt(camera.project(tip, sensor)[0]), red, 1,
                         cv2.LINE_AA, tipLength=0.3)
-    return out
+
+    font, scale, line = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 20
+    width = w * s
+    head = np.full((30, width, 3), 40, np.uint8)
+    cv2.putText(head, title or "frame with element centres, predicted contact patches and shear",
+                (8, 20), font, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    legend = [
+        ("dot", grey, f"element centre ({sensor.n_elements} elements)"),
+        ("circle", green, "contact patch predicted by the contact model (one per pressing cone)"),
+        ("arrow", red, "shear force on a loaded element: 1 mm on the dome per 0.1 N"),
+        (None, None, f"image: the {w}x{h} px frame, grey levels {lo:.0f}-{hi:.0f} shown black to white "
+                     f"(gamma {VIEW_GAMMA:g}), for display only"),
+    ]
+    foot = np.full((line * len(legend) + 8, width, 3), 40, np.uint8)
+    for k, (mark, colour, text) in enumerate(legend):
+        y = 14 + k * line
+        if mark == "dot":
+            cv2.circle(foot, (18, y - 4), 3, colour, -1, cv2.LINE_AA)
+        elif mark == "circle":
+            cv2.circle(foot, (18, y - 4), 6, colour, 1, cv2.LINE_AA)
+        elif mark == "arrow":
+            cv2.arrowedLine(foot, (8, y - 4), (30, y - 4), colour, 1, cv2.LINE_AA, tipLength=0.35)
+        cv2.putText(foot, text, (40 if mark else 8, y), font, scale, (255, 255, 255), 1, cv2.LINE_AA)
+    return np.concatenate([head, pic, foot], axis=0)
 
 
+def _noload_baseline(sensor: DomeSensor, camera: FisheyeCamera, ccd: CCD, args, *,
+                     seconds_per_frame: float) -> np.ndarray:
+    """The demo's no-load baseline: NOLOAD_FRAMES cached renders, announced and with a progress bar.
+
+    On a first run each is a full render (``seconds_per_frame``, the loaded
+    frame's time, is the estimate); later runs read them from the cache.
+    """
+    from tqdm import tqdm
+
+    from optitact._cache import cache_dir, cached_render
+
+    print(f"optitact: no-load baseline: {NOLOAD_FRAMES} renders at {args.spp} spp, about "
+          f"{NOLOAD_FRAMES * seconds_per_frame:.0f} s on the first run (one render took "
+          f"{seconds_per_frame:.1f} s); cached in {cache_dir() / 'renders'}, so later runs take "
+          f"seconds", file=sys.stderr)
+    baseline = []
+    for k in tqdm(range(NOLOAD_FRAMES), desc="no-load baseline", unit="frame", file=sys.stderr):
+        empty = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera,
+                              spp=args.spp, seed=args.seed + 1 + k, variant=args.variant)
+        baseline.append(ccd.expose(empty, seed=args.seed + 1 + k))
+    return np.stack(baseline)
 
 
-def _estimate(sensor: DomeSensor, r: dict, args) -> dict | None:
-    """Demo step 2: no-load baseline (cached render), pipeline and the shipped calibration."""
-    from optitact._cache import cached_render
+def _shipped_calibration(sensor: DomeSensor, args):
+    """The shipped calibration if it fits the demo's sensor and camera, else None (and a note why).
+
+    Called before rendering: a force estimate needs matplotlib for forces.png,
+    so a missing ``plot`` extra is reported now, not after minutes of renders.
+    """
+    from optitact._optional import require
     from optitact.calib import default_calibration
 
     cal = default_calibration()
-    if cal.camera != r["camera"] or cal.sensor != sensor:
+    if cal.camera != FisheyeCamera(width=args.width, height=args.height) or cal.sensor != sensor:
         print(f"optitact: the shipped calibration is for {cal.camera.width}x{cal.camera.height} "
               f"frames; skipping the force estimate", file=sys.stderr)
         return None
-    baseline = []
-    for k in range(NOLOAD_FRAMES):  # their mean and per-pixel noise (see Pipeline)
-        empty = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=r["camera"],
-                              spp=args.spp, seed=args.seed + 1 + k, variant=args.variant)
-        baseline.append(r["ccd"].expose(empty, seed=args.seed + 1 + k))
-    baseline = np.stack(baseline)
+    require("matplotlib.figure", purpose="the demo's forces.png")
+    return cal
+
+
+def _estimate(sensor: DomeSensor, r: dict, args, cal) -> dict | None:
+    """Demo step 2: no-load baseline (cached render), pipeline and the shipped calibration."""
+    if cal is None:
+        return None
+    baseline = _noload_baseline(sensor, r["camera"], r["ccd"], args,  # their mean and noise (see Pipeline)
+                                seconds_per_frame=r["render_seconds"])
     readings = cal.pipeline(baseline=baseline).process(r["frame"])
     return {"field": cal.apply(readings), "readings": readings, "calibration": cal}
 
@@ -145,13 +254,17 @@ def run_demo(args) -> int:
     forces = indenter_load(sensor)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
+    cal = _shipped_calibration(sensor, args)
     r = _render_frame(sensor, forces, args)
     contacts = contact_patches(sensor, forces)
     write_png(out / "frame.png", r["frame"])
-    write_png(out / "overlay.png", overlay(r["frame"], sensor, r["camera"], contacts, forces))
+    write_png(out / "frame_view.png", display_view(r["frame"]))
+    title = (f"optitact demo: indenter load, total Fz {forces[:, 2].sum():.2f} N; {args.spp} spp, "
+             f"{r['variant']}")
+    write_png(out / "overlay.png", overlay(r["frame"], sensor, r["camera"], contacts, forces, title=title))
     write_npy(out / "radiance.npy", r["radiance"])
-    est = _estimate(sensor, r, args)
-    written = ["frame.png", "overlay.png", "radiance.npy", "forces.json"]
+    est = _estimate(sensor, r, args, cal)
+    written = ["frame.png", "frame_view.png (viewing only)", "overlay.png", "radiance.npy", "forces.json"]
     meta = {
         "forces_local_n": forces,
         "columns": ["fx", "fy", "fz"],
@@ -196,10 +309,18 @@ def run_render(args) -> int:
     sensor = DomeSensor.default()
     forces = read_forces_csv(args.forces, sensor.n_elements)
     r = _render_frame(sensor, forces, args)
-    write_png(args.out, r["frame"])
+    if args.out.suffix.lower() == ".npy":
+        write_npy(args.out, r["frame"])
+    else:
+        write_png(args.out, r["frame"])
+    written = [str(args.out)]
     if args.radiance is not None:
         write_npy(args.radiance, r["radiance"])
-    print(f"optitact: wrote {args.out}", file=sys.stderr)
+        written.append(str(args.radiance))
+    if args.view is not None:
+        write_png(args.view, display_view(r["frame"]))
+        written.append(f"{args.view} (viewing only)")
+    print(f"optitact: wrote {', '.join(written)}", file=sys.stderr)
     return 0
 
 

@@ -22,10 +22,11 @@ from ._protocol import (
     Study,
     get,
     jsonable,
+    key_figures,
     names,
     run,
     save_plot,
     study_seeds,
 )
 
-__all__ = ["SIZES", "Study", "get", "jsonable", "names", "run", "save_plot", "study_seeds"]
+__all__ = ["SIZES", "Study", "get", "jsonable", "key_figures", "names", "run", "save_plot", "study_seeds"]

@@ -19,7 +19,7 @@ import numpy as np
 from .._validate import seed_value
 from ..errors import InputError
 
-__all__ = ["SIZES", "Study", "get", "jsonable", "names", "run", "save_plot", "study_seeds"]
+__all__ = ["SIZES", "Study", "get", "jsonable", "key_figures", "names", "run", "save_plot", "study_seeds"]
 
 #: Study sizes: ``quick`` runs in seconds (tests, notebooks), ``full`` is the published protocol.
 SIZES = ("quick", "full")
@@ -56,6 +56,11 @@ class Study:
         (``result["published"]``), with their source in ``"reference"``.
     figsize : tuple
         Figure size in inches.
+    key_figures : callable, optional
+        ``key_figures(result) -> [(label, ours, published), ...]``: the few
+        figures a reader compares first, each beside the published one (None
+        where the paper gives none). Without it :func:`key_figures` pairs
+        every entry of ``published`` with the result's entry at the same key.
     """
 
     name: str
@@ -64,6 +69,7 @@ class Study:
     draw: Callable[[Any, dict], None] | None = None
     published: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     figsize: tuple[float, float] = (14.0, 9.0)
+    key_figures: Callable[[dict], list[tuple[str, Any, Any]]] | None = None
 
 
 def names() -> list[str]:
@@ -214,3 +220,56 @@ def save_plot(name: str, result: Mapping, path) -> Path:
     from ..io import atomic_write_png_figure
 
     return atomic_write_png_figure(fig, path)
+
+
+#: Entries of ``published`` that describe rather than measure (not paired with the result).
+_DESCRIPTIVE = ("reference", "note")
+
+
+def _paired(published: Mapping, ours, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """Rows ``(key path, result's value there or None, published value)`` for every leaf of ``published``."""
+    rows = []
+    for key, pub in published.items():
+        if key in _DESCRIPTIVE:
+            continue
+        mine = ours.get(key) if isinstance(ours, Mapping) else None
+        if isinstance(pub, Mapping):
+            rows += _paired(pub, mine, f"{prefix}{key}/")
+        else:
+            rows.append((f"{prefix}{key}", mine, pub))
+    return rows
+
+
+def key_figures(name: str, result: Mapping) -> list[tuple[str, Any, Any]]:
+    """The study's key figures beside the published ones: ``[(label, ours, published), ...]``.
+
+    Uses the study's own :attr:`Study.key_figures` if it has one, else pairs
+    every entry of ``result["published"]`` with the result's entry at the same
+    key path (``ours`` is None where the result has no such entry). Values
+    are as in the result (JSON values); ``published`` is None where the paper
+    gives no figure.
+
+    Examples
+    --------
+    Palpation has no hook of its own (the generic pairing):
+
+    >>> rows = key_figures("palpation", {"n_folds": 5, "recognition": {"mu/left": [0.8, 0.95]},
+    ...                                  "published": {"reference": "a paper", "n_folds": 10,
+    ...                                                "recognition": {"mu/left": [0.707, 0.781],
+    ...                                                                "mu/right": [0.84, 0.86]}}})
+    >>> for row in rows:
+    ...     print(row)
+    ('n_folds', 5, 10)
+    ('recognition/mu/left', [0.8, 0.95], [0.707, 0.781])
+    ('recognition/mu/right', None, [0.84, 0.86])
+    """
+    study = get(name)
+    if not isinstance(result, Mapping):
+        raise TypeError(f"result must be a dict returned by studies.run, got {type(result).__name__}")
+    if study.key_figures is not None:
+        try:
+            return [(str(label), ours, pub) for label, ours, pub in study.key_figures(result)]
+        except (KeyError, IndexError, TypeError) as exc:
+            raise InputError(f"result is not a complete {name!r} study result "
+                             f"({type(exc).__name__}: {exc})") from exc
+    return _paired(result.get("published") or {}, result)

@@ -324,6 +324,23 @@ PUBLISHED = {
     "recognition": "9 objects, 125 units, one hidden layer of 13 tanh units, 70/30 split",
 }
 
+def key_figures(result: dict) -> list[tuple]:
+    """Ranges, response times, repeatability and recognition beside the paper's."""
+    cfg, pub, ranges = result["config"], result["published"], result["ranges"]
+    return [
+        ("detection range (N)", [cfg["force_low_n"], cfg["force_high_n"]], pub["detection_range_n"]),
+        ("resolution (N)", cfg["resolution_n"], pub["resolution_n"]),
+        ("plane 2 range (N)", [ranges["low_n"][1], ranges["high_n"][1]], pub["plane_2_range_n"]),
+        ("response 63 % load (ms)", result["response"]["t63_load_ms"], pub["response_ms"]["load"]),
+        ("response 63 % unload (ms)", result["response"]["t63_unload_ms"], pub["response_ms"]["unload"]),
+        ("repeatability mean (% FS)", result["repeatability"]["mean_pct"], pub["repeatability_pct"]),
+        ("repeatability worst unit (% FS)", result["repeatability"]["max_pct"], pub["repeatability_pct"]),
+        ("decoupling RMS (N), published law", result["decoupling"]["published"]["rms_total_n"], None),
+        ("decoupling RMS (N), calibrated", result["decoupling"]["calibrated"]["rms_total_n"], None),
+        ("recognition accuracy", result["recognition"]["accuracy"], pub["recognition"]),
+    ]
+
+
 STUDY = Study(name="fingertip", summary="non-coplanar 25-unit fingertip, 3-D force and object recognition",
-              run=run, draw=draw, published=PUBLISHED, figsize=(17.0, 9.0))
+              run=run, draw=draw, published=PUBLISHED, figsize=(17.0, 9.0), key_figures=key_figures)
 

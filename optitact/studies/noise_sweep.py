@@ -468,7 +468,21 @@ def draw(fig, result) -> None:
     ax2.legend()
 
 
+def key_figures(result: dict) -> list[tuple]:
+    """Efficiencies at the nominal noise beside the target, and the flicker checks."""
+    nominal = result["nominal"]
+    rows = [("centroid efficiency at nominal noise", nominal["u_efficiency"],
+             f">= {result['published']['u_efficiency_min']}"),
+            ("G efficiency at nominal noise", nominal["G_efficiency"], None),
+            ("nominal SNR of the spot", nominal["snr"], None)]
+    for f in result["flicker"]:
+        rows.append((f"contact rate at {f['energy_dn_mm2']:.3g} DN mm2", f["measured_rate"],
+                     f"predicted {f['predicted_rate']:.3g}"))
+    return rows
+
+
 STUDY = Study(
+    key_figures=key_figures,
     name="noise",
     summary="Dome sensor: spread of G and of the centroid against the Cramér–Rao bound, and contact flicker",
     run=run,

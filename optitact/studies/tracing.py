@@ -253,5 +253,17 @@ PUBLISHED = {
             "distribution separates the diameters more finely as N grows (diameter resolution)",
 }
 
+def key_figures(result: dict) -> list[tuple]:
+    """Mean neighbour difference per N beside the published ranges, and the diameter classification."""
+    pub, proto, c = result["published"], result["protocol"], result["classification"]
+    rows = [("diameters (mm)", proto["diameters_mm"], pub["diameters_mm"])]
+    rows += [(f"neighbour difference range, N = {n} (V)", result["mad_range_v"].get(str(n)),
+              pub["mad_range_v"].get(str(n))) for n in proto["n_steps"]]
+    rows += [(f"diameter accuracy, N = {n}", acc, None)
+             for n, acc in zip(c["n_steps"], c["accuracy"], strict=True)]
+    return rows
+
+
 STUDY = Study(name="tracing", summary="piezo16 finger pad: active tracing of pipes, diameter from the width of "
-              "the combined distribution", run=run, draw=draw, published=PUBLISHED, figsize=(14.0, 9.0))
+              "the combined distribution", run=run, draw=draw, published=PUBLISHED, figsize=(14.0, 9.0),
+              key_figures=key_figures)

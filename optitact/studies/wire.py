@@ -418,6 +418,16 @@ PUBLISHED = {
                    "table clearly worse, confusing neighbouring diameters",
 }
 
+def key_figures(result: dict) -> list[tuple]:
+    """Diameter accuracy per classifier beside the paper's verdict, and the pad's stated specification."""
+    c, pub = result["classification"], result["published"]
+    rows = [("accuracy/lookup table", c["lookup_table"]["accuracy"], "clearly worse than SVM and NN"),
+            ("accuracy/SVM", c["svm"]["accuracy"], "near 1"),
+            ("accuracy/neural network", c["mlp"]["accuracy"], "near 1"),
+            ("accuracy/chance", c["chance"], None)]
+    return rows + [(f"sensor/{k}", result["config"].get(k), v) for k, v in pub["sensor"].items()]
+
+
 STUDY = Study(name="wire", summary="5x5 optoelectronic pad, wire shape and diameter", run=run, draw=draw,
-              published=PUBLISHED, figsize=(16.0, 8.5))
+              published=PUBLISHED, figsize=(16.0, 8.5), key_figures=key_figures)
 
