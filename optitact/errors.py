@@ -6,7 +6,8 @@ catch ``ValueError`` or ``TypeError`` keep working.
 
 from __future__ import annotations
 
-__all__ = ["OptitactError", "ShapeError", "InputError", "RenderError", "MissingExtraError", "KindError"]
+__all__ = ["OptitactError", "ShapeError", "InputError", "RenderError", "MissingExtraError", "KindError",
+           "OptitactWarning"]
 
 
 class OptitactError(Exception):
@@ -34,4 +35,13 @@ class KindError(OptitactError, TypeError):
 
     A ``TypeError``, so callers catching it keep working; a subclass so that
     the command line can tell the user's bad data from a programming error.
+    """
+
+
+class OptitactWarning(UserWarning):
+    """Data that can be read but may give wrong or less certain forces (lossy frames, a noisy baseline).
+
+    The command line prints each as one ``optitact: warning: ...`` line on
+    stderr; in Python, ``warnings.simplefilter("error", OptitactWarning)``
+    turns them into errors.
     """

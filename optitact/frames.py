@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import check_frame_size
-from .errors import InputError, ShapeError
+from .errors import InputError, OptitactWarning, ShapeError
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "expand_sources",
            "count_frames", "iter_frames"]
@@ -56,7 +56,7 @@ _LOSSY_NAMES = {"mjpg": "Motion JPEG", "avc1": "H.264", "h264": "H.264", "x264":
                 "wmv3": "WMV", "wmv2": "WMV"}
 
 
-class FramesWarning(UserWarning):
+class FramesWarning(OptitactWarning):
     """Frames that can be read but may give wrong forces: lossy compression, a truncated video."""
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ._validate import check_type
 from .camera import FisheyeCamera
-from .errors import InputError, KindError, ShapeError
+from .errors import InputError, KindError, OptitactWarning, ShapeError
 from .readings import Readings
 
 __all__ = ["FILTERS", "G_MIN", "MAX_GREY", "apply_threshold", "check_frames", "denoise", "estimate_noise",
@@ -333,7 +333,7 @@ def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
         warnings.warn(f"a one-frame baseline of {h}x{w} pixels is too small to estimate its noise from "
                       f"(fewer than {MIN_NOISE_PIXELS} interior pixels): the threshold is noise_sigma "
                       f"alone; average several no-load frames (a baseline stack) to measure the noise",
-                      UserWarning, stacklevel=stacklevel)
+                      OptitactWarning, stacklevel=stacklevel)
         return None
     r = (x[1:-1, 1:-1] - 0.5 * (x[1:-1, :-2] + x[1:-1, 2:])).ravel()
     m_in = (x[:-2, :-2] + x[:-2, 1:-1] + x[:-2, 2:] + x[2:, :-2] + x[2:, 1:-1] + x[2:, 2:]) / 6.0

@@ -1,7 +1,8 @@
 """Command-line interface: ``optitact demo``, ``render``, ``process``, ``calibrate``, ``bench``, ``experiment``.
 
-Messages and progress bars go to stderr; commands that print results print
-one JSON object on stdout (``bench``, ``experiment``), the others the path
+Messages, warnings (one ``optitact: warning: ...`` line each) and progress
+bars go to stderr; ``bench`` prints one JSON object on stdout, ``experiment``
+a table of key figures (``--json``: the JSON object), the others the path
 they wrote. Bad input (optitact's own :class:`~optitact.errors.InputError`
 and :class:`~optitact.errors.ShapeError`, a missing extra, an unreadable or
 unwritable file) is a one-line ``optitact: error: ...`` and exit code 2; any
@@ -18,9 +19,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 
 from optitact import __version__
-from optitact.errors import OptitactError
+from optitact.errors import OptitactError, OptitactWarning
 
 from . import bench, calibrate, demo, experiment, process
 from .demo import overlay
@@ -45,11 +47,21 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """Print a warning as one ``optitact: warning: ...`` line on stderr, above any progress bar."""
+    from tqdm import tqdm
+
+    tqdm.write(f"optitact: warning: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``optitact`` command; returns the exit code."""
     args = parser().parse_args(argv)
     try:
-        return args.run(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line
+            warnings.simplefilter("always", OptitactWarning)  # the user is told, whatever the filters say
+            return args.run(args)
     except USER_ERRORS as exc:
         print(f"optitact: error: {exc}", file=sys.stderr)
         return 2

@@ -242,7 +242,7 @@ def _estimate(sensor: DomeSensor, r: dict, args, cal) -> dict | None:
         return None
     baseline = _noload_baseline(sensor, r["camera"], r["ccd"], args,  # their mean and noise (see Pipeline)
                                 seconds_per_frame=r["render_seconds"])
-    readings = cal.pipeline(baseline=baseline).process(r["frame"])
+    readings = cal.pipeline(baseline=baseline, bits=r["ccd"].bits).process(r["frame"])
     return {"field": cal.apply(readings), "readings": readings, "calibration": cal}
 
 
