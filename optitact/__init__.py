@@ -10,9 +10,9 @@ from __future__ import annotations
 import importlib
 
 from .camera import FisheyeCamera, dome_from_pixel, pixel_from_dome
-from .ccd import CCD
+from .ccd import CCD, IntensityScale
 from .contact import Contacts, cone_loads, contact_patches
-from .errors import InputError, OptitactError, RenderError, ShapeError
+from .errors import InputError, OptitactError, OptitactWarning, RenderError, ShapeError
 from .pipeline import Pipeline
 from .readings import Readings
 from .sensor import DomeSensor
@@ -25,7 +25,9 @@ __all__ = [
     "DomeSensor",
     "FisheyeCamera",
     "InputError",
+    "IntensityScale",
     "OptitactError",
+    "OptitactWarning",
     "Pipeline",
     "Readings",
     "RenderError",
