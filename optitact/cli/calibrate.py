@@ -57,7 +57,11 @@ def add_parsers(sub) -> None:
     fitp.add_argument("set", type=Path, metavar="SET.zarr", help="a calibration set")
     fitp.add_argument("--model", choices=("ohka", "coupled"), default="coupled",
                       help="curve model (default coupled)")
-    fitp.add_argument("--out", type=Path, required=True, metavar="CAL.json")
+    fitp.add_argument("--out", type=Path, required=True, metavar="CAL.json",
+                      help="the calibration file to write")
+    fitp.add_argument("--partial", action="store_true",
+                      help="fit the finished frames of an incomplete set (a killed or running generate); "
+                           "without it an incomplete set is refused with how many frames are done")
     fitp.set_defaults(run=run_fit)
 
 
@@ -80,10 +84,12 @@ def run_fit(args) -> int:
     """``optitact calibrate fit``: prints the calibration's path on stdout."""
     from optitact.calib import fit
 
-    cal = fit(args.set, model=args.model)
+    cal = fit(args.set, model=args.model, partial=args.partial)
     cal.save(args.out)
     r = cal.residuals
-    print(f"optitact: fitted {args.model} on {int(np.sum(r['n']))} samples; median RMS residual "
+    prov = cal.provenance
+    print(f"optitact: fitted {args.model} on {int(np.sum(r['n']))} samples from {prov['frames']} of "
+          f"{prov['frames_in_set']} frames; median RMS residual "
           f"Fx {np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} "
           f"N; wrote {args.out}", file=sys.stderr)
     if args.plot is not None:
