@@ -442,7 +442,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
              seed: int = 0, design: Design | None = None, keep_frames: bool = False,
              variant: str | None = None, pipeline_options: dict | None = None,
              baseline_frames: int = 4, render_mode: str = "two_stage", table=None,
-             scheduler=None, progress: bool = True) -> CalibrationSet:
+             table_spp: int | None = None, scheduler=None, progress: bool = True) -> CalibrationSet:
     """Create or finish a synthetic calibration set (resumable).
 
     Parameters
@@ -480,8 +480,14 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         no-load radiance; ``"full"``: path-traced whole frames. ``optitact
         bench render`` measures each against converged path tracing.
     table : EmissionTable, optional
-        ``"two_stage"`` only: the stage-1 table (default: the cached one for
-        this sensor and camera, measured on first use, a few minutes).
+        ``"two_stage"`` only: the stage-1 table. Default: the one shipped with
+        the package for the default sensor and camera (nothing to measure),
+        else the cached one for this sensor and camera, measured on first use
+        at ``table_spp`` (a one-time step of many minutes, announced on stderr
+        with an estimate; see :func:`optitact.render.twostage.emission_table`).
+    table_spp : int, optional
+        Samples per pixel of that measurement (default: the shipped table's,
+        else ``TABLE_SPP`` = 4096); fewer is faster and noisier.
     scheduler : str or distributed.Client, optional
         Run the frames on a Dask distributed cluster: a scheduler address
         (``"tcp://host:8786"``) or a ``Client``. Each frame is one task that
@@ -514,6 +520,8 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         raise InputError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
     if table is not None and render_mode != "two_stage":
         raise InputError("table is for render_mode='two_stage'")
+    if table_spp is not None and (table is not None or render_mode != "two_stage"):
+        raise InputError("table_spp is for render_mode='two_stage' without a table")
     if scheduler is not None and not isinstance(scheduler, str) and \
             type(scheduler).__name__ != "Client":
         raise TypeError(f"scheduler must be an address string or a distributed.Client, got "
@@ -536,7 +544,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     if render_mode == "two_stage":
         from optitact.render.twostage import emission_table
 
-        table = table if table is not None else emission_table(sensor, camera, variant=variant,
+        table = table if table is not None else emission_table(sensor, camera, variant=variant, spp=table_spp,
                                                                progress=progress)
         attrs["two_stage_table"] = json_fingerprint(table.to_dict()["radiance"], 16)
     path = Path(path)
@@ -595,7 +603,9 @@ def _fill(path: Path, *, zarr, attrs, check, frames, sensor, camera, ccd, design
         group.create_array("done", shape=(frames,), dtype="bool", chunks=(1,), fill_value=False)
         group.attrs.put(attrs)  # last, in one write: a store with attributes has all its arrays
     bseeds = np.random.SeedSequence([seed, 3]).generate_state(baseline_frames)
-    for k in np.flatnonzero(~np.asarray(group["baseline_done"][:], dtype=bool)):
+    todo_base = np.flatnonzero(~np.asarray(group["baseline_done"][:], dtype=bool))
+    for k in tqdm(todo_base, desc="no-load baseline", unit="frame", file=sys.stderr,
+                  disable=not progress or not len(todo_base)):
         empty = render(sensor, np.zeros((n_el, 3)), camera=camera, spp=spp, seed=int(bseeds[k]),
                        variant=variant)
         group["baseline_radiance"][k] = empty
