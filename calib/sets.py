@@ -8,7 +8,13 @@ Every array is chunked one frame per chunk and Zarr writes chunks atomically
 (temporary file, then rename); ``done[i]`` is written last, so a run killed
 at any moment leaves only whole frames marked done, and running the same
 command again renders the missing ones -- with their own seeds, so the set is
-identical to an uninterrupted run.
+identical to an uninterrupted run. A store killed before its attributes were
+written (no finished frame; only the store's own file names in the folder) is
+rebuilt by the same command, an empty folder is a new store, and a folder
+holding anything else is never deleted. Zarr's ``*.partial`` temporary files
+left by a kill are removed on the next run. While :func:`generate` writes it
+holds an OS lock on the store (``.optitact-lock`` inside it, naming the
+holder): a second writer is refused at once.
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
 __all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "design_forces", "frame_seeds", "generate",
-           "RENDER_MODES"]
+           "RENDER_MODES", "StoreLockedError", "LOCK_NAME"]
 
 #: How :func:`generate` renders its frames (see its ``render_mode``).
 RENDER_MODES = ("two_stage", "pixels", "full")
