@@ -666,17 +666,40 @@ def _check_readings(readings: Readings) -> None:
         raise InputError(f"readings.G must be >= 0, got {np.min(readings.G)}")
 
 
-def fit(calibration_set, *, model: str = "coupled") -> Calibration:
-    """Fit a calibration to a :class:`~optitact.calib.CalibrationSet` (or its path)."""
+def fit(calibration_set, *, model: str = "coupled", partial: bool = False) -> Calibration:
+    """Fit a calibration to a :class:`~optitact.calib.CalibrationSet` (or its path).
+
+    Parameters
+    ----------
+    calibration_set : CalibrationSet or path-like
+    model : {"coupled", "ohka"}
+        The curve model (see :meth:`Calibration.fit`).
+    partial : bool
+        Fit the finished frames of a set that is not complete (a run that was
+        killed or is still going). Without it such a set is refused: a fit on
+        part of a design covers part of its force range.
+
+    Raises
+    ------
+    InputError
+        The set has no finished frame, or is incomplete and ``partial`` is false
+        (the message says how many frames are done).
+    """
     from .sets import CalibrationSet
 
     cs = calibration_set if isinstance(calibration_set, CalibrationSet) \
         else CalibrationSet(calibration_set)
-    if not cs.done.any():
-        raise InputError(f"{cs.path} has no finished frames yet")
+    done = cs.done
+    n_done, n = int(done.sum()), len(cs)
+    if not done.any():
+        raise InputError(f"{cs.path} has no finished frames yet (0 of {n}); run its generate command")
+    if n_done < n and not partial:
+        raise InputError(f"{cs.path} is incomplete: {n_done} of {n} frames done; run its generate command "
+                         f"again to finish it, or fit the {n_done} done frames with partial=True "
+                         f"(--partial)")
     return Calibration.fit(cs.readings(), cs.forces(), sensor=cs.sensor, camera=cs.camera,
                            pipeline_options=cs.attrs.get("pipeline", {}), model=model,
-                           provenance={"set": str(cs.path), "frames": int(cs.done.sum()),
+                           provenance={"set": str(cs.path), "frames": n_done, "frames_in_set": n,
                                        "seed": cs.attrs["seed"], "spp": cs.attrs["spp"],
                                        "design": cs.attrs["design"]},
                            intensity=IntensityScale(bits=cs.ccd.bits))

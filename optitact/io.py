@@ -38,14 +38,41 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
     """Write a file atomically: ``write(tmp)`` fills a temporary file beside ``path``, then it is renamed.
 
     A reader sees the old file or the complete new one, never half of it; if
-    ``write`` raises (or the process is killed) ``path`` is untouched and the
-    temporary file is removed (or left as ``.<name>.<pid>.tmp``, never read).
-    The parent folder is created if needed. The temporary file keeps
-    ``path``'s suffix, so writers that choose the format by extension work.
+    ``write`` raises, ``path`` is untouched and the temporary file is removed.
+    The temporary file is ``.<name>.<pid>-<random>.tmp<suffix>`` (hidden,
+    never read, keeping ``path``'s suffix so writers that choose the format by
+    extension work); one left by a process that was killed is removed by the
+    next write of the same ``path`` (only those whose process is gone). The
+    parent folder is created if needed.
     """
+    import re
+    import secrets
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    # Temporaries of this path left by killed writers: this version's names and those of before
+    # (``.<stem>.<pid>.tmp<suffix>``); a living writer's (its pid exists) is left alone.
+    stale = re.compile(rf"^\.(?:{re.escape(path.name)}\.(\d+)-[0-9a-f]+|{re.escape(path.stem)}\.(\d+))"
+                       rf"\.tmp{re.escape(path.suffix)}$")
+    for entry in os.scandir(path.parent):
+        m = stale.match(entry.name)
+        if m is None or not entry.is_file(follow_symlinks=False):
+            continue
+        pid = int(m.group(1) or m.group(2))
+        try:
+            if pid == os.getpid():
+                continue
+            os.kill(pid, 0)
+            continue  # alive: it may be writing now
+        except (ProcessLookupError, OverflowError):
+            pass  # gone (or never a pid): stale
+        except OSError:
+            continue  # alive under another user, or unknowable
+        try:
+            os.unlink(entry.path)
+        except FileNotFoundError:
+            pass
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp{path.suffix}")
     try:
         write(tmp)
         os.replace(tmp, path)
