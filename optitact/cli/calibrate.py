@@ -19,7 +19,8 @@ def add_parsers(sub) -> None:
         "calibrate", help="synthetic calibration sets and fitted curves",
         description="Generate a synthetic calibration set (rendered frames with known forces, "
                     "resumable) and fit calibration curves to it.")
-    csub = cal.add_subparsers(dest="calibrate", required=True, metavar="STEP")
+    csub = cal.add_subparsers(dest="calibrate", required=True, metavar="STEP",
+                              help="generate a set, or fit curves to one")
     gen = csub.add_parser(
         "generate", parents=[spp_parent(64), seed_parent("seed of the whole set"), image_size_parent(),
                              variant_parent()],
