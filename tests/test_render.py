@@ -289,3 +289,20 @@ def test_full_output_returns_what_the_render_measured():
     np.testing.assert_array_equal(out.radiance, bg)
     plain = render(SENSOR, np.zeros((41, 3)), camera=cam, pixels=none, background=bg)
     assert isinstance(plain, np.ndarray)
+
+
+def test_instanced_shell_renders_the_same_scene(monkeypatch):
+    """A light render (instanced shell) equals the flat scene's render up to intersection rounding."""
+    import optitact.render as R
+
+    forces = np.zeros((SENSOR.n_elements, 3))
+    forces[[0, 3, 12], 2] = [0.6, 0.4, 0.3]
+    forces[3, 0] = 0.1
+    light = render(SENSOR, forces, camera=TINY, spp=8, seed=5)          # 3,072 pixels x 8: instanced
+    assert TINY.width * TINY.height * 8 < R.INSTANCED_BELOW_SAMPLES
+    monkeypatch.setattr(R, "INSTANCED_BELOW_SAMPLES", 0)                 # the same render, flat scene
+    flat = render(SENSOR, forces, camera=TINY, spp=8, seed=5)
+    assert flat.sum() > 0
+    differ = flat != light
+    assert differ.mean() < 0.01                                          # the same samples, same paths
+    np.testing.assert_allclose(light.sum(), flat.sum(), rtol=2e-3)
