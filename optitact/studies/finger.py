@@ -74,10 +74,10 @@ def experiment(*, seed: int = 0, full: bool = False, progress: bool = True,
         Seeds everything (the chain's frames, the force models, the slip onsets).
     full : bool
         Published sizes (3 frictions x 3 speeds, 2.5 s strokes at 20 Hz; two laps with 12 slips;
-        cylinder and box, and the joint-error study): about eight minutes on 2 CPU cores at
+        cylinder and box, and the joint-error study): about three minutes on 2 CPU cores at
         640x480, 32 spp. Otherwise a quick run
         (the three frictions at 6.2 mm/s with 1.2 s strokes at 10 Hz; one lap with 4 slips; the
-        cylinder only, a shorter span), about a minute.
+        cylinder only, a shorter span), about 35 seconds.
     progress : bool
         tqdm bars on stderr.
     chain : ChainSimulator, optional
@@ -143,6 +143,31 @@ def draw(fig, result: dict) -> None:
     fig.suptitle(f"robotic finger with the dome sensor (seed {result.get('seed')}, full={result.get('full')})")
 
 
+def key_figures(result: dict) -> list[tuple]:
+    """Friction against the tolerance, slip detection, contour deviations (ideal, and with joint error)."""
+    scan, slip, trace = result["surface_scanning"], result["slip"], result["contour_tracing"]
+    pub = result["published"]
+    summary, scores = scan["summary"], slip["scores"]
+    rows = [("friction runs within tolerance", f"{summary['n_within_tolerance']} of {summary['n_runs']}",
+             f"+-{pub['surface_scanning']['tolerance']}"),
+            ("friction: largest error", summary["max_abs_error"], None),
+            ("slip: precision / recall", [scores["precision"], scores["recall"]], None),
+            ("slip: mean delay (s)", scores["mean_delay_s"], None),
+            ("slip: false alarms", scores["false_alarms"], None)]
+    published = pub["contour_tracing"]["max_deviation_mm"]
+    for name, obj in trace["objects"].items():
+        rows.append((f"contour {name}: max deviation, ideal finger (mm)",
+                     obj["max_deviation_except_corners_mm"], published.get(name)))
+    study = result.get("joint_error_study")
+    if study is not None:
+        for name, obj in study["objects"].items():
+            for err, med in zip(study["joint_error_deg"], obj["median"], strict=True):
+                if err > 0:
+                    rows.append((f"contour {name}: median max deviation, joint error {err:g} deg (mm)", med,
+                                 published.get(name)))
+    return rows
+
+
 STUDY = Study(
     name="finger",
     summary="the dome sensor on a 3-DOF finger: friction scanning, slip detection, contour tracing",
@@ -160,4 +185,5 @@ STUDY = Study(
                             "lift_mm": 5.0},
     },
     figsize=(15.0, 2.4 * _SCAN_ROWS + 4 + 5),
+    key_figures=key_figures,
 )

@@ -208,3 +208,15 @@ def test_quick_study_through_the_registry(quick_result, tmp_path):
     assert studies.run("finger", seed=0, size="quick") == r  # cached
     studies.save_plot("finger", r, tmp_path / "finger.png")
     assert (tmp_path / "finger.png").stat().st_size > 10_000
+
+
+def test_key_figures_summarise_the_quick_study(quick_result):
+    rows = {label: (ours, pub) for label, ours, pub in studies.key_figures("finger", quick_result)}
+    summary = quick_result["surface_scanning"]["summary"]
+    assert rows["friction runs within tolerance"] == (
+        f"{summary['n_within_tolerance']} of {summary['n_runs']}", "+-0.02")
+    assert rows["slip: precision / recall"][0] == [quick_result["slip"]["scores"]["precision"],
+                                                   quick_result["slip"]["scores"]["recall"]]
+    cyl = quick_result["contour_tracing"]["objects"]["cylinder"]["max_deviation_except_corners_mm"]
+    assert rows["contour cylinder: max deviation, ideal finger (mm)"] == (cyl, 3.6)
+    assert not any("joint error" in label for label in rows)   # the quick size has no joint-error study
