@@ -115,6 +115,22 @@ def test_camera_file_gives_the_same_forces_as_process(tmp_path, frames, cal, vid
     assert all(f.dropped == 0 for f in got_py) and np.array_equal(got_py[3].frame, frames[3])
 
 
+def test_camera_with_a_baseline_file_max_frames_and_a_plot(tmp_path, frames, cal, video, capsys):
+    pytest.importorskip("matplotlib")
+    c, cal_path = cal
+    np.save(tmp_path / "base.npy", frames[0])
+    out, plot = tmp_path / "f.csv", tmp_path / "p.png"
+    assert main(["process", "--camera", str(video), "--baseline", str(tmp_path / "base.npy"),
+                 "--max-frames", "2", "--calibration", str(cal_path), "--out", str(out),
+                 "--plot", str(plot)]) == 0
+    err = capsys.readouterr().err
+    assert "--max-frames 2 reached: 2 frames processed (0 of them baseline), 0 dropped" in err
+    assert plot.stat().st_size > 0
+    want = c.apply(c.pipeline(baseline=frames[0]).process(frames[:2]))
+    np.testing.assert_allclose(columns(read_csv(out), ("fx", "fy", "fz"), 2), [ff.local for ff in want],
+                               rtol=1e-9, atol=1e-12)
+
+
 def test_newest_policy_drops_frames_when_the_consumer_is_slow(tmp_path, frames, cal, monkeypatch, capsys):
     """Deterministic: the consumer's first write waits until the reader has read three more frames."""
     _, cal_path = cal

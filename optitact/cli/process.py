@@ -386,6 +386,10 @@ def _run_live(args) -> int:
         reason = f"--max-frames {args.max_frames} reached"
     elif reason == "the stream ended" and args.seconds is not None and seconds >= args.seconds:
         reason = f"--seconds {args.seconds:g} reached"
+    if args.plot is not None and last is not None:
+        last.forces.save_plot(args.plot, last.frame, built[-1].camera,
+                              title=f"estimated forces (last frame, {last.source})")
+        print(f"optitact: wrote the force-field plot of the last frame to {args.plot}", file=sys.stderr)
     dropped = last.dropped if last is not None else 0
     also = f" and per-frame resultants to {per_frame_path(args.out)}" if cal else ""
     print(f"optitact: {reason}: {n} frames processed ({n_b} of them baseline), {dropped} dropped, "
