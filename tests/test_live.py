@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import gc
-import json
 import os
 import re
 import signal
@@ -12,6 +11,7 @@ import threading
 import cv2
 import numpy as np
 import pytest
+import test_process_cli
 from test_process_cli import CAM, SENSOR, SPOTS, read_csv, spot_frame
 
 import optitact
@@ -28,15 +28,8 @@ def frames():
     return np.stack([spot_frame(0), spot_frame(90), spot_frame(150), spot_frame(200), spot_frame(120)])
 
 
-@pytest.fixture(scope="module")
-def cal(tmp_path_factory):
-    """The shipped calibration's curves for the 160x120 test camera (as in test_process_cli)."""
-    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
-
-    shipped = json.loads(DEFAULT_CALIBRATION.read_text())
-    shipped.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
-    c = Calibration.from_dict(shipped)
-    return c, c.save(tmp_path_factory.mktemp("cal") / "cal.json")
+#: The shipped calibration's curves for the 160x120 test camera: ``(calibration, its file)``.
+cal = test_process_cli.small_cal
 
 
 @pytest.fixture(scope="module")
