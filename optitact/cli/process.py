@@ -10,6 +10,7 @@ import numpy as np
 
 from optitact.camera import FisheyeCamera
 from optitact.errors import InputError
+from optitact.live import POLICIES
 from optitact.sensor import DomeSensor
 
 from ._args import int_at_least, positive_int
@@ -34,8 +35,8 @@ def add_parsers(sub) -> None:
                     "elements in contact, total normal force, resultant (global, N) and centre of "
                     "pressure (mm). Files appear when the run is complete; a failed run keeps the "
                     "rows done so far as READINGS.partial.csv and says so.")
-    proc.add_argument("frames", nargs="+", type=Path, metavar="FRAMES",
-                      help="image files, folders, .npy stacks or video files")
+    proc.add_argument("frames", nargs="*", type=Path, metavar="FRAMES",
+                      help="image files, folders, .npy stacks or video files (or --camera)")
     proc.add_argument("--out", type=Path, required=True, metavar="READINGS.csv",
                       help="the CSV file to write (its folder must exist; with --calibration also "
                            "READINGS.per_frame.csv)")
@@ -81,6 +82,25 @@ def add_parsers(sub) -> None:
                            "frames, and the CSV is the same as a local run's")
     proc.add_argument("--batch", type=positive_int, default=32,
                       help="frames processed together (default 32)")
+    live = proc.add_argument_group(
+        "live streams", "instead of FRAMES, read an OpenCV capture (cv2.VideoCapture) and write the rows "
+                        "as they come: to READINGS.partial.csv, flushed after every frame, renamed to "
+                        "READINGS.csv when the stream stops cleanly (its end, --max-frames, --seconds, "
+                        "Ctrl-C); colour frames are converted to grey (OpenCV's BGR2GRAY)")
+    live.add_argument("--camera", default=None, metavar="INDEX|URL",
+                      help="a camera's device index (0, 1, ...), a GStreamer pipeline, an RTSP/HTTP URL or a "
+                           "video file")
+    live.add_argument("--policy", choices=POLICIES, default=None,
+                      help="all: process every frame; newest: when processing falls behind, take the newest "
+                           "frame and count the skipped ones as dropped (default: all for a video file, newest "
+                           "for a device or URL)")
+    live.add_argument("--view", action="store_true",
+                      help="show each frame with the elements and the estimated shear drawn over it (needs a "
+                           "display and an OpenCV with GUI support; q or Esc stops)")
+    live.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
+                      help="stop after N frames (baseline frames included)")
+    live.add_argument("--seconds", type=float, default=None, metavar="S",
+                      help="stop after S seconds")
 
     proc.set_defaults(run=run_process)
 
@@ -110,25 +130,8 @@ def _check_out(path: Path | None, option: str) -> None:
         raise InputError(f"{option} {path}: the folder {path.parent} does not exist (create it first)")
 
 
-def run_process(args) -> int:
-    """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
-    from optitact.batch import process_files
-    from optitact.frames import expand_sources, iter_frames
-    from optitact.io import per_frame_path
-    from optitact.pipeline import Pipeline
-
-    _check_out(args.out, "--out")
-    _check_out(args.plot, "--plot")
-    files = expand_sources(args.frames)
-    first = next(iter_frames(files[:1]), None)
-    if first is None:
-        raise InputError("the frames hold no frame")
-    if args.setup is not None:
-        sensor, camera = _setup(args.setup)
-    else:
-        sensor = DomeSensor.default()
-        h, w = first[1].shape[:2]
-        camera = FisheyeCamera(width=w, height=h, fov_deg=args.fov, z=args.camera_z)
+def _given(args) -> dict:
+    """The pipeline options given on the command line."""
     given = {k: v for k, v in (("filter", args.filter), ("filter_size", args.filter_size),
                                  ("noise_sigma", args.noise_sigma), ("k", args.k)) if v is not None}
     if args.filter == "median" and args.filter_size is not None:  # a window: an integer number of pixels
@@ -136,32 +139,76 @@ def run_process(args) -> int:
             raise InputError(f"filter_size (--filter-size) of a median must be an odd integer window, "
                              f"got {args.filter_size:g}")
         given["filter_size"] = int(args.filter_size)
-    baseline = None if args.baseline is None else _load_baseline(args.baseline)
-    cal = None
-    if args.calibration is not None:
-        from optitact.calib import Calibration, CalibrationMismatchError, default_calibration
+    return given
 
-        cal = (default_calibration() if str(args.calibration) == "default"
-               else Calibration.load(args.calibration))
-        if given:
-            raise InputError(f"the calibration fixes the pipeline options "
-                             f"({cal.pipeline_options}); drop {', '.join(sorted(given))}")
-        cal.check(sensor=sensor if args.setup is not None else None,
-                  camera=camera if args.setup is not None else None)
-        if first[1].shape[:2] != cal.camera.shape:
-            raise CalibrationMismatchError(
-                f"{first[0]}: the calibration (fingerprint {cal.fingerprint}) is for "
-                f"{cal.camera.width}x{cal.camera.height} frames, got "
-                f"{first[1].shape[1]}x{first[1].shape[0]}")
-        camera = cal.camera
-        pipe = cal.pipeline(method=args.method, bits=args.bits)
-    elif args.plot is not None:
-        raise InputError("--plot needs --calibration (it plots estimated forces)")
-    else:
-        pipe = Pipeline(sensor, camera, method=args.method, bits=args.bits, **given)
+
+def _calibration(args, given: dict, setup):
+    """The ``--calibration`` (None without one), checked against ``--setup`` and the options."""
+    if args.calibration is None:
+        if args.plot is not None:
+            raise InputError("--plot needs --calibration (it plots estimated forces)")
+        return None
+    from optitact.calib import Calibration, default_calibration
+
+    cal = (default_calibration() if str(args.calibration) == "default"
+           else Calibration.load(args.calibration))
+    if given:
+        raise InputError(f"the calibration fixes the pipeline options "
+                         f"({cal.pipeline_options}); drop {', '.join(sorted(given))}")
+    cal.check(sensor=None if setup is None else setup[0], camera=None if setup is None else setup[1])
+    return cal
+
+
+def _pipeline(args, given: dict, cal, setup, shape):
+    """The pipeline of the options, for frames of ``shape`` (H, W) (used without --setup and calibration)."""
+    from optitact.pipeline import Pipeline
+
+    if cal is not None:
+        return cal.pipeline(method=args.method, bits=args.bits)
+    sensor, camera = setup if setup is not None else (
+        DomeSensor.default(), FisheyeCamera(width=shape[1], height=shape[0], fov_deg=args.fov, z=args.camera_z))
+    return Pipeline(sensor, camera, method=args.method, bits=args.bits, **given)
+
+
+def _baseline_note(args, baseline) -> tuple[int, str]:
     n_base = 0 if baseline is not None else args.baseline_frames
-    how = (f"baseline {args.baseline}" if baseline is not None else
-           f"baseline = mean of the first {n_base} frame(s)" if n_base else "no baseline")
+    return n_base, (f"baseline {args.baseline}" if baseline is not None else
+                    f"baseline = mean of the first {n_base} frame(s)" if n_base else "no baseline")
+
+
+def run_process(args) -> int:
+    """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
+    from optitact.batch import process_files
+    from optitact.frames import expand_sources, iter_frames
+    from optitact.io import per_frame_path
+
+    _check_out(args.out, "--out")
+    _check_out(args.plot, "--plot")
+    if args.camera is not None:
+        return _run_live(args)
+    if args.policy is not None or args.view or args.max_frames is not None or args.seconds is not None:
+        raise InputError("--policy, --view, --max-frames and --seconds are options of a --camera stream")
+    if not args.frames:
+        raise InputError("no frames given: pass image files, a folder, .npy stacks or a video, or "
+                         "--camera INDEX|URL for a live stream")
+    files = expand_sources(args.frames)
+    first = next(iter_frames(files[:1]), None)
+    if first is None:
+        raise InputError("the frames hold no frame")
+    setup = None if args.setup is None else _setup(args.setup)
+    given = _given(args)
+    baseline = None if args.baseline is None else _load_baseline(args.baseline)
+    cal = _calibration(args, given, setup)
+    if cal is not None and first[1].shape[:2] != cal.camera.shape:
+        from optitact.calib import CalibrationMismatchError
+
+        raise CalibrationMismatchError(
+            f"{first[0]}: the calibration (fingerprint {cal.fingerprint}) is for "
+            f"{cal.camera.width}x{cal.camera.height} frames, got "
+            f"{first[1].shape[1]}x{first[1].shape[0]}")
+    pipe = _pipeline(args, given, cal, setup, first[1].shape[:2])
+    camera = pipe.camera
+    n_base, how = _baseline_note(args, baseline)
     print(f"optitact: processing {camera.width}x{camera.height} frames, {how}", file=sys.stderr)
     done = process_files(files, pipeline=pipe, calibration=cal, baseline=baseline, baseline_frames=n_base,
                          out=args.out, batch=args.batch, scheduler=args.scheduler, progress=True)
@@ -174,4 +221,178 @@ def run_process(args) -> int:
     print(f"optitact: wrote {'forces' if cal else 'readings'} of {done.n_frames} frames to {args.out}{also} "
           f"({done.n_frames / max(done.seconds, 1e-9):.0f} frames/s {where}, including reading)",
           file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------- live streams
+#: The --view window's title.
+VIEW_WINDOW = "optitact process"
+
+
+def display_available() -> str | None:
+    """None when ``--view`` can open a window here, else why it cannot."""
+    import os
+    import re
+
+    import cv2
+
+    gui = re.search(r"GUI:\s*(\S+)", cv2.getBuildInformation())
+    if gui is not None and gui.group(1).upper() == "NONE":
+        return "this OpenCV is built without a GUI (e.g. opencv-python-headless)"
+    if sys.platform.startswith("linux") and not any(os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY")):
+        return "no display (DISPLAY and WAYLAND_DISPLAY are not set)"
+    return None
+
+
+class _View:
+    """``--view``: each frame with the element centres and estimated shear (the demo's overlay)."""
+
+    def __init__(self, sensor, camera) -> None:
+        from optitact.contact import Contacts
+
+        n, k = sensor.n_elements, len(sensor.cone_offsets)
+        self.sensor, self.camera = sensor, camera
+        self.no_patches = Contacts(centers=np.zeros((n, k, 3)), radii=np.zeros((n, k)), loads=np.zeros((n, k)),
+                                   saturated=np.zeros((n, k), bool), tipped=np.zeros(n, bool),
+                                   slide=np.zeros((n, 2)))
+        self.on = True
+
+    def show(self, lf) -> bool:
+        """Show the frame; False when the user asks to stop (q or Esc)."""
+        import cv2
+
+        from .demo import overlay
+
+        if not self.on:
+            return True
+        forces = lf.forces.local if lf.forces is not None else np.zeros((self.sensor.n_elements, 3))
+        total = f", total normal {lf.forces.total_normal:.2f} N" if lf.forces is not None else ""
+        title = (f"{lf.source}: {int(lf.readings.contact.sum())} elements in contact{total}, "
+                 f"{lf.dropped} dropped")
+        try:
+            cv2.imshow(VIEW_WINDOW, overlay(lf.frame, self.sensor, self.camera, self.no_patches, forces,
+                                            title=title))
+            key = cv2.waitKey(1) & 0xFF
+        except cv2.error as exc:
+            print(f"optitact: --view: cannot show the frames ({str(exc).strip().splitlines()[-1]}); going on "
+                  f"without the view", file=sys.stderr)
+            self.on = False
+            return True
+        return key not in (ord("q"), 27)
+
+    def close(self) -> None:
+        if self.on:
+            import cv2
+
+            try:
+                cv2.destroyWindow(VIEW_WINDOW)
+            except cv2.error:
+                pass
+
+
+class _CtrlC:
+    """The first Ctrl-C asks the loop to stop after the current frame; a second one interrupts at once."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old = None
+
+    def _handle(self, signum, frame) -> None:
+        import signal
+
+        self.requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        print("optitact: Ctrl-C: stopping after this frame (Ctrl-C again stops at once)", file=sys.stderr)
+
+    def __enter__(self) -> _CtrlC:
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+
+
+def _run_live(args) -> int:
+    """``optitact process --camera``: stream, write the rows as they come, print a summary."""
+    import time
+
+    from optitact.io import partial_path, per_frame_path
+    from optitact.live import LiveWriter, _policy, source_label, stream
+
+    if args.frames:
+        raise InputError("give FRAMES or --camera, not both")
+    if args.scheduler is not None:
+        raise InputError("--scheduler processes files on a cluster; a --camera stream is processed here")
+    if args.seconds is not None and not args.seconds > 0:
+        raise InputError(f"--seconds must be > 0, got {args.seconds:g}")
+    setup = None if args.setup is None else _setup(args.setup)
+    given = _given(args)
+    baseline = None if args.baseline is None else _load_baseline(args.baseline)
+    cal = _calibration(args, given, setup)
+    built: list = []  # the pipeline in use (for the view)
+    if cal is not None or setup is not None:
+        pipe = _pipeline(args, given, cal, setup, None)
+        built.append(pipe)
+    else:  # a camera model of the first frame's size
+        def pipe(shape):
+            built.append(_pipeline(args, given, None, None, shape))
+            return built[-1]
+    n_base, how = _baseline_note(args, baseline)
+    frames = stream(args.camera, calibration=cal, pipeline=pipe, baseline=baseline, baseline_frames=n_base,
+                    policy=args.policy, max_frames=args.max_frames, seconds=args.seconds)
+    which = ("every frame" if _policy(args.camera, args.policy) == "all"
+             else "the newest frame, dropping the others when behind")
+    label = source_label(args.camera)
+    print(f"optitact: reading {label} ({which}), {how}; rows go to {partial_path(args.out)} as they come, "
+          f"renamed to {args.out} at the end; Ctrl-C stops", file=sys.stderr)
+    view = None
+    if args.view:
+        why = display_available()
+        if why is not None:
+            print(f"optitact: --view: {why}; going on without the view", file=sys.stderr)
+    reason, last, n, n_b = "the stream ended", None, 0, 0
+    t0 = time.perf_counter()
+    with LiveWriter(args.out, calibration=cal) as out, _CtrlC() as ctrl_c:
+        try:
+            for lf in frames:
+                out.write(lf)
+                last, n, n_b = lf, n + 1, n_b + lf.baseline
+                if args.view and why is None:
+                    if view is None:
+                        view = _View(built[-1].sensor, built[-1].camera)
+                    if not view.show(lf):
+                        reason = "stopped from the view (q/Esc)"
+                        break
+                if ctrl_c.requested:
+                    reason = "stopped by Ctrl-C"
+                    break
+        except KeyboardInterrupt:
+            reason = "stopped by Ctrl-C"
+        finally:
+            frames.close()
+            if view is not None:
+                view.close()
+        seconds = time.perf_counter() - t0
+        if n == 0 and reason == "the stream ended":
+            raise InputError(f"{label}: the stream gave no frame")
+    if reason == "the stream ended" and args.max_frames is not None and n >= args.max_frames:
+        reason = f"--max-frames {args.max_frames} reached"
+    elif reason == "the stream ended" and args.seconds is not None and seconds >= args.seconds:
+        reason = f"--seconds {args.seconds:g} reached"
+    if args.plot is not None and last is not None:
+        last.forces.save_plot(args.plot, last.frame, built[-1].camera,
+                              title=f"estimated forces (last frame, {last.source})")
+        print(f"optitact: wrote the force-field plot of the last frame to {args.plot}", file=sys.stderr)
+    dropped = last.dropped if last is not None else 0
+    also = f" and per-frame resultants to {per_frame_path(args.out)}" if cal else ""
+    print(f"optitact: {reason}: {n} frames processed ({n_b} of them baseline), {dropped} dropped, "
+          f"{n / max(seconds, 1e-9):.1f} frames/s; wrote {'forces' if cal else 'readings'} of {n} frames to "
+          f"{args.out}{also}", file=sys.stderr)
     return 0
