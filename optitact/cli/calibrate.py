@@ -1,4 +1,4 @@
-"""``optitact calibrate generate|fit``: synthetic calibration sets and fitted curves."""
+"""``optitact calibrate generate|fit|test``: synthetic calibration sets, fitted curves, held-out reports."""
 
 from __future__ import annotations
 
@@ -7,20 +7,24 @@ from pathlib import Path
 
 import numpy as np
 
-from ._args import image_size_parent, plot_parent, positive_int, render_mode_choices, seed_parent, spp_parent, \
-    variant_parent
+from optitact.errors import InputError
+
+from ._args import image_size_parent, int_at_least, plot_parent, positive_int, render_mode_choices, \
+    seed_parent, spp_parent, variant_parent
 
 __all__ = ["add_parsers"]
 
 
 def add_parsers(sub) -> None:
-    """Add ``calibrate`` (with ``generate`` and ``fit``) to the subcommands."""
+    """Add ``calibrate`` (with ``generate``, ``fit`` and ``test``) to the subcommands."""
     cal = sub.add_parser(
         "calibrate", help="synthetic calibration sets and fitted curves",
         description="Generate a synthetic calibration set (rendered frames with known forces, "
-                    "resumable) and fit calibration curves to it.")
+                    "resumable) and fit calibration curves to it or to frames of your own presses; "
+                    "test a calibration on held-out presses.")
     csub = cal.add_subparsers(dest="calibrate", required=True, metavar="STEP",
-                              help="generate a set, or fit curves to one")
+                              help="generate a set, fit curves (to a set or to measured presses), or "
+                                   "test a calibration")
     gen = csub.add_parser(
         "generate", parents=[spp_parent(64), seed_parent("seed of the whole set"), image_size_parent(),
                              variant_parent()],
@@ -59,20 +63,69 @@ def add_parsers(sub) -> None:
     gen.set_defaults(run=run_generate)
     fitp = csub.add_parser(
         "fit", parents=[plot_parent("save g(G), the shear curves and residuals as PNG")],
-        help="fit calibration curves to a set",
+        help="fit calibration curves to a set, or to frames of measured presses",
         description="Fit per-element curves Fz = g(G) and the shear curves (model ohka: "
                     "Fx = f(ux), Fy = f(uy); model coupled: (Fx, Fy) = u g(G) / (a + b sqrt(g(G))))"
-                    " to a calibration set and write them as JSON; --plot saves the curves with "
-                    "their residuals.")
-    fitp.add_argument("set", type=Path, metavar="SET.zarr", help="a calibration set")
-    fitp.add_argument("--model", choices=("ohka", "coupled"), default="coupled",
-                      help="curve model (default coupled)")
+                    " to a calibration set, or to your own presses: --frames FRAMES --forces gauge.csv "
+                    "(one row per frame and pressed element: frame, element, fx, fy, fz in N, "
+                    "element-local unless a frame_of_reference column says global; frame is the file "
+                    "name as optitact process names it in its source column, e.g. press_001.png or "
+                    "clip.avi#12, or a 0-based index into the frames in order; elements and frames "
+                    "without a row are unloaded). From scratch each element needs 8 presses; --start "
+                    "refines a calibration (a gain on G and a scale on the shear curve per element) "
+                    "from as few as 2 per element and keeps its curves for elements pressed less. "
+                    "Write the curves as JSON; --plot saves them with their residuals.")
+    fitp.add_argument("set", type=Path, nargs="?", default=None, metavar="SET.zarr",
+                      help="a calibration set (or give --frames and --forces)")
+    fitp.add_argument("--model", choices=("ohka", "coupled"), default=None,
+                      help="curve model (default coupled; a refinement keeps the start's)")
     fitp.add_argument("--out", type=Path, required=True, metavar="CAL.json",
                       help="the calibration file to write")
     fitp.add_argument("--partial", action="store_true",
                       help="fit the finished frames of an incomplete set (a killed or running generate); "
                            "without it an incomplete set is refused with how many frames are done")
+    _presses_arguments(fitp)
+    fitp.add_argument("--setup", type=Path, default=None, metavar="FILE.json",
+                      help="with --frames: the sensor and camera (e.g. from optitact register); default "
+                           "the start's, else the default sensor and a camera of the frames' size")
+    fitp.add_argument("--start", default=None, metavar="default|CAL.json",
+                      help="with --frames: refine this calibration ('default': the shipped one) instead "
+                           "of fitting from scratch")
     fitp.set_defaults(run=run_fit)
+    test = csub.add_parser(
+        "test", parents=[plot_parent("save estimated vs true forces of the pressed elements as PNG")],
+        help="held-out errors of a calibration on frames of measured presses",
+        description="Read held-out frames with the calibration's pipeline, estimate the forces and "
+                    "compare them with the gauge's (CSV as for fit): RMSE per axis in N and in %% of "
+                    "full scale (the largest held-out Fz, and the largest shear component for Fx and "
+                    "Fy), per ring, the bias, the worst elements, and the forces estimated on "
+                    "unloaded elements.")
+    test.add_argument("--calibration", required=True, metavar="default|CAL.json",
+                      help="the calibration to test ('default': the shipped one)")
+    _presses_arguments(test, required=True)
+    test.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
+    test.set_defaults(run=run_test)
+
+
+def _presses_arguments(p, *, required: bool = False) -> None:
+    """``--frames``, ``--forces``, ``--baseline`` and ``--baseline-frames``."""
+    p.add_argument("--frames", type=Path, nargs="+", default=None, required=required, metavar="FRAMES",
+                   help="frames of the presses: image files, folders, .npy stacks or videos, in order")
+    p.add_argument("--forces", type=Path, default=None, required=required, metavar="GAUGE.csv",
+                   help="the gauge's forces: frame, element, fx, fy, fz (N) [, frame_of_reference]")
+    p.add_argument("--baseline", type=Path, default=None, metavar="NOLOAD",
+                   help="no-load frame(s) (default: the first --baseline-frames frames)")
+    p.add_argument("--baseline-frames", type=int_at_least(0, "an integer >= 0"), default=1, metavar="N",
+                   help="without --baseline: average this many first frames (not pressed) as the no-load "
+                        "baseline (default 1; 0 subtracts nothing)")
+
+
+def _baseline(args):
+    if args.baseline is None:
+        return None, args.baseline_frames
+    from optitact.frames import expand_sources, iter_frames
+
+    return np.stack([f for _, f in iter_frames(expand_sources([args.baseline]))]), 0
 
 
 def run_generate(args) -> int:
@@ -95,11 +148,18 @@ def run_fit(args) -> int:
     """``optitact calibrate fit``: prints the calibration's path on stdout."""
     from optitact.calib import fit
 
-    cal = fit(args.set, model=args.model, partial=args.partial)
+    if args.frames is not None or args.forces is not None:
+        return _run_fit_presses(args)
+    if args.set is None:
+        raise InputError("give a calibration set (SET.zarr), or frames of presses with --frames and --forces")
+    for name in ("setup", "start", "baseline"):
+        if getattr(args, name) is not None:
+            raise InputError(f"--{name} is for fitting presses (--frames and --forces), not a set")
+    cal = fit(args.set, model=args.model or "coupled", partial=args.partial)
     cal.save(args.out)
     r = cal.residuals
     prov = cal.provenance
-    print(f"optitact: fitted {args.model} on {int(np.sum(r['n']))} samples from {prov['frames']} of "
+    print(f"optitact: fitted {cal.model} on {int(np.sum(r['n']))} samples from {prov['frames']} of "
           f"{prov['frames_in_set']} frames; median RMS residual "
           f"Fx {np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} "
           f"N; wrote {args.out}", file=sys.stderr)
@@ -111,4 +171,95 @@ def run_fit(args) -> int:
         plot_fit(cal, cs.readings(), cs.forces(), args.plot)
         print(f"optitact: wrote {args.plot}", file=sys.stderr)
     print(args.out)
+    return 0
+
+
+def _run_fit_presses(args) -> int:
+    """``optitact calibrate fit --frames ... --forces ...``."""
+    from optitact.calib.presses import _fit_measured, _start, measure_presses
+
+    if args.frames is None or args.forces is None:
+        raise InputError("fitting presses needs both --frames and --forces")
+    if args.set is not None or args.partial:
+        raise InputError("give a calibration set or --frames/--forces, not both")
+    start = _start(args.start)
+    pipe = _presses_pipeline(args.setup, start, args.frames)
+    base, n_base = _baseline(args)
+    p = measure_presses(args.frames, args.forces, pipeline=pipe, baseline=base, baseline_frames=n_base,
+                        progress=True)
+    cal = _fit_measured(p, pipe, model=args.model, start=start, forces=args.forces)
+    cal.save(args.out)
+    r = cal.residuals
+    n_press = np.asarray(cal.provenance["presses_per_element"])
+    how = (f"refined {args.start} on {len(cal.provenance['refined_elements'])} elements"
+           if start is not None else f"fitted {cal.model} from scratch")
+    print(f"optitact: {how} from {int(p.pressed.sum())} presses in {len(p.sources)} frames "
+          f"({int(n_press.min())}-{int(n_press.max())} per element); median RMS residual Fx "
+          f"{np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} N; "
+          f"wrote {args.out}", file=sys.stderr)
+    if args.plot is not None:
+        from optitact.calib.plots import plot_fit
+
+        plot_fit(cal, p.readings, p.forces, args.plot)
+        print(f"optitact: wrote {args.plot}", file=sys.stderr)
+    print(args.out)
+    return 0
+
+
+def _presses_pipeline(setup, start, frames):
+    """The pipeline that reads the presses: the setup's sensor and camera, the start's options."""
+    from optitact.calib.presses import _default_pipeline
+    from optitact.pipeline import Pipeline
+
+    if setup is None:
+        return start.pipeline() if start is not None else _default_pipeline(frames)
+    from .process import _setup
+
+    sensor, camera = _setup(setup)
+    if start is None:
+        return Pipeline(sensor, camera)
+    if sensor.n_elements != len(start.g):
+        raise InputError(f"--setup {setup}: the sensor has {sensor.n_elements} elements, the starting "
+                         f"calibration {len(start.g)}")
+    return Pipeline(sensor, camera, readings_bits=start.intensity.bits,
+                    **{k: v for k, v in start.pipeline_options.items() if k != "method"})
+
+
+def run_test(args) -> int:
+    """``optitact calibrate test``: the held-out report on stderr (or JSON on stdout)."""
+    import json
+
+    from optitact.calib.presses import _start, measure_presses, press_report
+
+    cal = _start(args.calibration)
+    base, n_base = _baseline(args)
+    p = measure_presses(args.frames, args.forces, pipeline=cal.pipeline(), baseline=base,
+                        baseline_frames=n_base, progress=True)
+    rep = press_report(cal, p.readings, p.forces, p.pressed)
+    rep["calibration"] = str(args.calibration)
+    if args.plot is not None:
+        from optitact.calib.plots import plot_errors
+
+        est, _ = cal.forces(p.readings)
+        plot_errors(p.forces[p.pressed], {cal.model: est[p.pressed]}, args.plot)
+        print(f"optitact: wrote {args.plot}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(rep))
+        return 0
+    pct = rep["rmse_pct_fs"]
+    lines = [f"{rep['presses']} presses on {rep['elements_pressed']} elements; RMSE "
+             + ", ".join(f"{k.capitalize()} {rep['rmse_n'][k]:.4f} N"
+                         + (f" ({pct[k]:.2f} % FS)" if pct[k] is not None else "") for k in ("fx", "fy", "fz")),
+             "bias " + ", ".join(f"{k.capitalize()} {v:+.4f} N" for k, v in rep["bias_n"].items())]
+    lines += [f"ring {r['ring']}: {r['presses']} presses, RMSE "
+              + ", ".join(f"{k.capitalize()} {v:.4f}" for k, v in r["rmse_n"].items()) + " N"
+              for r in rep["per_ring"] if r["rmse_n"] is not None]
+    lines.append("worst elements: " + ", ".join(f"{w['element']} ({w['rms_error_n']:.4f} N)"
+                                                 for w in rep["worst_elements"]))
+    un = rep["unloaded"]
+    lines.append(f"unloaded: {un['samples']} samples, RMSE " + ", ".join(
+        f"{k.capitalize()} {v:.4f}" for k, v in un["rmse_n"].items()) + f" N, contact seen in "
+        f"{100 * un['contact_rate']:.1f} %")
+    for line in lines:
+        print(f"optitact: {line}", file=sys.stderr)
     return 0
