@@ -6,7 +6,7 @@
 # (contact model → Mitsuba render of the loaded elements' pixels → CCD → pipeline →
 # shipped calibration), never read from the simulation. The library part is
 # `optitact.finger` (kinematics, scene, chain); the experiments are the `finger` study,
-# run here at its quick size (about a minute on 2 CPU cores, reused from the cache when the
+# run here at its quick size (about 35 seconds on 2 CPU cores, reused from the cache when the
 # tests made it): `optitact.studies.run("finger", seed=0, size="full")` runs the published
 # sizes.
 

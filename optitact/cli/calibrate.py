@@ -96,7 +96,7 @@ def add_parsers(sub) -> None:
         "test", parents=[plot_parent("save estimated vs true forces of the pressed elements as PNG")],
         help="held-out errors of a calibration on frames of measured presses",
         description="Read held-out frames with the calibration's pipeline, estimate the forces and "
-                    "compare them with the gauge's (CSV as for fit): RMSE per axis in N and in %% of "
+                    "compare them with the gauge's (CSV as for fit): RMSE per axis in N and in % of "
                     "full scale (the largest held-out Fz, and the largest shear component for Fx and "
                     "Fy), per ring, the bias, the worst elements, and the forces estimated on "
                     "unloaded elements.")
