@@ -38,7 +38,7 @@ __all__ = [
     "pixel_from_dome",
 ]
 
-_SUBPACKAGES = ("render", "calib", "forces")
+_SUBPACKAGES = ("render", "calib", "forces", "live")
 
 
 def __getattr__(name: str):

@@ -35,8 +35,8 @@ import numpy as np
 from .camera import check_frame_size
 from .errors import InputError, OptitactWarning, ShapeError
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "expand_sources",
-           "count_frames", "iter_frames"]
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "check_codec",
+           "expand_sources", "count_frames", "iter_frames"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".wmv", ".mpg", ".mpeg")
@@ -244,6 +244,25 @@ def iter_frames(files: Sequence[Path]) -> Iterator[tuple[str, np.ndarray]]:
             yield f.name, _grey(img, str(f))
 
 
+def check_codec(f: Path, cap) -> None:
+    """Warn (once per file) when the opened video ``cap`` of file ``f`` uses a codec not known to be lossless.
+
+    A lossy codec (MJPG, H.264, MPEG-4, ...) changes grey levels and biases
+    the estimated forces; lossless ones are listed in ``LOSSLESS_CODECS``.
+    """
+    import cv2
+
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
+    codec = fourcc.to_bytes(4, "little").decode("latin-1")
+    name = codec.strip(" \0").lower()
+    if name not in LOSSLESS_CODECS:
+        what = (f"is lossy ({_LOSSY_NAMES[name]})" if name in _LOSSY_NAMES
+                else "is not known to be lossless")
+        _warn_once(f, f"{f}: video codec {codec.strip(chr(0))!r} {what}: compression changes the "
+                      f"grey levels and biases the estimated forces; record with a lossless "
+                      f"codec (FFV1, PNG, raw)")
+
+
 def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
     """The frames of one video, with the lossy-codec and truncation warnings of :func:`iter_frames`."""
     cap = cv2.VideoCapture(str(f))
@@ -255,15 +274,7 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
         check_frame_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
                          str(f))
         announced = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
-        codec = fourcc.to_bytes(4, "little").decode("latin-1")
-        name = codec.strip(" \0").lower()
-        if name not in LOSSLESS_CODECS:
-            what = (f"is lossy ({_LOSSY_NAMES[name]})" if name in _LOSSY_NAMES
-                    else "is not known to be lossless")
-            _warn_once(f, f"{f}: video codec {codec.strip(chr(0))!r} {what}: compression changes the "
-                          f"grey levels and biases the estimated forces; record with a lossless "
-                          f"codec (FFV1, PNG, raw)")
+        check_codec(f, cap)
         while True:
             ok, img = cap.read()
             if not ok:

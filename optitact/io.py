@@ -457,9 +457,9 @@ def per_frame_path(path: str | os.PathLike) -> Path:
 class _PartialFile:
     """A CSV file written beside ``path`` as ``.NAME.PID.partial``, renamed when complete."""
 
-    def __init__(self, path: Path, header: Sequence[str]) -> None:
+    def __init__(self, path: Path, header: Sequence[str], tmp: Path | None = None) -> None:
         self.path = path
-        self.tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        self.tmp = tmp if tmp is not None else path.with_name(f".{path.name}.{os.getpid()}.partial")
         self.fh = self.tmp.open("w", newline="", encoding="utf-8")
         self.fh.write(",".join(header) + "\r\n")
 
@@ -499,6 +499,11 @@ class ReadingsWriter:
     as :func:`partial_path` (``out.partial.csv``; nothing when no frame was
     written) and adds where they are to the exception's message; a killed
     process leaves its hidden temporary file and ``path`` untouched.
+
+    With ``visible=True`` (a live stream, which has no end to wait for) the
+    rows go to :func:`partial_path` from the start instead, so that readers
+    see them as they come (call :meth:`flush` after each frame); ``close``
+    renames them just the same.
     """
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
@@ -507,7 +512,8 @@ class ReadingsWriter:
                      "resultant_y", "resultant_z", "centre_of_pressure_x", "centre_of_pressure_y",
                      "centre_of_pressure_z")
 
-    def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None) -> None:
+    def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None,
+                 visible: bool = False) -> None:
         self.path = Path(path)
         self.with_forces = forces
         if forces:
@@ -518,11 +524,19 @@ class ReadingsWriter:
                                 f"global forces, got {type(sensor).__name__}")
         self.sensor = sensor
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._files = [_PartialFile(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))]
+        def partial(target: Path, header: Sequence[str]) -> _PartialFile:
+            return _PartialFile(target, header, partial_path(target) if visible else None)
+
+        self._files = [partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))]
         if forces:
-            self._files.append(_PartialFile(per_frame_path(self.path), self.FRAME_COLUMNS))
+            self._files.append(partial(per_frame_path(self.path), self.FRAME_COLUMNS))
         self._fh = self._files[0].fh
         self.frames = 0
+
+    def flush(self) -> None:
+        """Hand the rows written so far to the operating system (they survive a crash of this process)."""
+        for f in self._files:
+            f.fh.flush()
 
     @property
     def paths(self) -> list[Path]:

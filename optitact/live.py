@@ -49,8 +49,8 @@ import numpy as np
 
 from ._validate import integer, positive
 from .errors import InputError, ShapeError
-from .frames import _grey
-from .io import ReadingsWriter, partial_path
+from .frames import _grey, check_codec
+from .io import ReadingsWriter
 from .pipeline import Pipeline
 from .readings import Readings
 
@@ -186,6 +186,8 @@ def open_capture(source, *, size: tuple[int, int] | None = None):
                if _is_file_source(source) else
                "the stream is unreachable, or OpenCV lacks the backend (FFmpeg, GStreamer)")
         raise InputError(f"could not open {what} (cv2.VideoCapture): {why}")
+    if index is None and _is_file_source(source):
+        check_codec(Path(os.fspath(source)), cap)  # a recording read as a stream: the same warning
     if index is not None and size is not None:
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, size[1])
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, size[0])
@@ -454,13 +456,8 @@ class LiveWriter:
 
     def __init__(self, path: str | os.PathLike, *, calibration=None) -> None:
         self.with_forces = calibration is not None
-        self._writer = ReadingsWriter(path, forces=self.with_forces,
+        self._writer = ReadingsWriter(path, forces=self.with_forces, visible=True,
                                       sensor=calibration.sensor if self.with_forces else None)
-        for f in self._writer._files:  # rows in NAME.partial.csv from the start, not a hidden file
-            f.fh.close()
-            visible = partial_path(f.path)
-            os.replace(f.tmp, visible)
-            f.tmp, f.fh = visible, visible.open("a", newline="", encoding="utf-8")
         self.path = self._writer.path
 
     @property
@@ -481,8 +478,7 @@ class LiveWriter:
             self._writer.write(frame.readings, [frame.source], frame.forces.local, frame.forces.clamped)
         else:
             self._writer.write(frame.readings, [frame.source])
-        for f in self._writer._files:
-            f.fh.flush()
+        self._writer.flush()
 
     def close(self) -> None:
         """A clean stop: rename the rows to their final names."""

@@ -295,3 +295,17 @@ def test_live_errors_exit_2_and_leave_no_file(tmp_path, frames, cal, monkeypatch
     assert main(["process", *case, "--out", "f.csv"]) == 2
     assert re.search(match, capsys.readouterr().err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frames.npy"]
+
+
+def test_a_lossy_recording_read_as_a_stream_warns_like_process(tmp_path, frames, cal):
+    from optitact.frames import FramesWarning
+
+    path = tmp_path / "mjpg.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (CAM.width, CAM.height), False)
+    for f in frames:
+        vw.write(f)
+    vw.release()
+    c, _ = cal
+    with pytest.warns(FramesWarning, match=r"mjpg\.avi: video codec 'MJPG' is lossy"):
+        got = list(stream(path, calibration=c))
+    assert len(got) == len(frames)

@@ -123,7 +123,7 @@ def display_view(frame: np.ndarray, *, gamma: float = VIEW_GAMMA) -> np.ndarray:
     return np.round(np.clip((img - lo) / (hi - lo), 0.0, 1.0) ** gamma * 255.0).astype(np.uint8)
 
 
-def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts,
+def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts | None,
             forces: np.ndarray, *, title: str | None = None) -> np.ndarray:
     """BGR uint8 picture of a frame with element centres, predicted patches and shear arrows.
 
@@ -132,7 +132,8 @@ def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contac
     element's shear a red arrow (1 mm on the dome per 0.1 N). Small frames
     are enlarged (nearest pixel) so the marks and text are legible; a title
     band sits above the picture and a legend with the scales and units
-    below it.
+    below it. ``contacts=None`` (estimated forces, as a live view draws):
+    no patches, and no patch line in the legend.
     """
     import cv2
 
@@ -151,7 +152,7 @@ def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contac
     centres = camera.project(sensor.element_positions, sensor)
     for rc in centres:
         cv2.circle(pic, pt(rc), max(1, s // 2), grey, -1, cv2.LINE_AA)
-    touching = contacts.radii > 0
+    touching = contacts.radii > 0 if contacts is not None else np.zeros((0,), bool)
     if touching.any():
         idx = np.argwhere(touching)
         centre_px = camera.project(contacts.centers[touching], sensor)
@@ -177,7 +178,8 @@ def overlay(frame: np.ndarray, sensor: DomeSensor, camera: FisheyeCamera, contac
                 (8, 20), font, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     legend = [
         ("dot", grey, f"element centre ({sensor.n_elements} elements)"),
-        ("circle", green, "contact patch predicted by the contact model (one per pressing cone)"),
+        *([("circle", green, "contact patch predicted by the contact model (one per pressing cone)")]
+          if contacts is not None else []),
         ("arrow", red, "shear force on a loaded element: 1 mm on the dome per 0.1 N"),
         (None, None, f"image: the {w}x{h} px frame, grey levels {lo:.0f}-{hi:.0f} shown black to white "
                      f"(gamma {VIEW_GAMMA:g}), for display only"),

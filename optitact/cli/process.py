@@ -248,13 +248,7 @@ class _View:
     """``--view``: each frame with the element centres and estimated shear (the demo's overlay)."""
 
     def __init__(self, sensor, camera) -> None:
-        from optitact.contact import Contacts
-
-        n, k = sensor.n_elements, len(sensor.cone_offsets)
         self.sensor, self.camera = sensor, camera
-        self.no_patches = Contacts(centers=np.zeros((n, k, 3)), radii=np.zeros((n, k)), loads=np.zeros((n, k)),
-                                   saturated=np.zeros((n, k), bool), tipped=np.zeros(n, bool),
-                                   slide=np.zeros((n, 2)))
         self.on = True
 
     def show(self, lf) -> bool:
@@ -270,7 +264,7 @@ class _View:
         title = (f"{lf.source}: {int(lf.readings.contact.sum())} elements in contact{total}, "
                  f"{lf.dropped} dropped")
         try:
-            cv2.imshow(VIEW_WINDOW, overlay(lf.frame, self.sensor, self.camera, self.no_patches, forces,
+            cv2.imshow(VIEW_WINDOW, overlay(lf.frame, self.sensor, self.camera, None, forces,
                                             title=title))
             key = cv2.waitKey(1) & 0xFF
         except cv2.error as exc:
