@@ -416,6 +416,9 @@ class FisheyeCamera(Camera):
         return radial_map(sensor, self.z).theta_max
 
 
+CAMERA_MODELS[FisheyeCamera.model] = FisheyeCamera
+
+
 class RadialMap:
     """Polar angle of the seen dome point as a function of the ray angle, and its inverse.
 

@@ -241,22 +241,32 @@ class PinholeCamera(_OpenCVCamera):
         den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
         dnum = r * (2 * k1 + r2 * (4 * k2 + 6 * k3 * r2))
         dden = r * (2 * k4 + r2 * (4 * k5 + 6 * k6 * r2))
-        return r * num / den, num / den + r * (dnum * den - num * dden) / (den * den), den
+        with np.errstate(divide="ignore", invalid="ignore"):  # den = 0: beyond the imaged range
+            return r * num / den, num / den + r * (dnum * den - num * dden) / (den * den), den
 
     @cached_property
     def max_radius(self) -> float:
-        """Largest undistorted normalised radius imaged: where the radial distortion stops being monotone."""
-        r = np.linspace(0.0, PINHOLE_MAX_RADIUS, 200_001)
-        _, dg, den = self._radial(r)
-        bad = np.flatnonzero((dg <= 0) | (den <= 0))
-        if bad.size == 0:
+        """Largest undistorted normalised radius imaged: the first fold (Jacobian <= 0) at any azimuth."""
+        phi = np.linspace(0.0, 2.0 * np.pi, 180, endpoint=False)
+        r = np.concatenate([[0.0], np.geomspace(1e-3, PINHOLE_MAX_RADIUS, 3000)])
+
+        def good(rr, ph):
+            x, y = rr * np.cos(ph), rr * np.sin(ph)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                _, _, j11, j12, j21, j22 = self._distort(x, y, jacobian=True)
+                return (j11 * j22 - j12 * j21 > 0) & (self._radial(rr)[1] > 0) & (self._radial(rr)[2] > 0)
+
+        ok = good(r[:, None], phi[None, :])  # (r, phi)
+        if ok.all():
             return PINHOLE_MAX_RADIUS
-        lo, hi = r[bad[0] - 1], r[bad[0]]
+        first = np.argmin(ok, axis=0)  # first bad radius per azimuth (0 where all good)
+        first = np.where(ok.all(axis=0), len(r) - 1, first)
+        lo, hi = r[np.maximum(first - 1, 0)], r[first]
         for _ in range(60):
             mid = 0.5 * (lo + hi)
-            _, dgm, denm = self._radial(mid)
-            lo, hi = (mid, hi) if (dgm > 0 and denm > 0) else (lo, mid)
-        return float(lo)
+            g = good(mid, phi)
+            lo, hi = np.where(g, mid, lo), np.where(g, hi, mid)
+        return float(lo.min())
 
     def _pixel_from_camera_ray(self, d: np.ndarray) -> np.ndarray:
         z = d[..., 2]
@@ -273,7 +283,6 @@ class PinholeCamera(_OpenCVCamera):
         rd = np.hypot(xd, yd)
         rmax = self.max_radius
         gmax = self._radial(np.array(rmax))[0]
-        ok = rd <= gmax
         # radial inverse for a start, then Newton on the full 2-D map
         target = np.minimum(rd, gmax).ravel()
 
@@ -293,12 +302,16 @@ class PinholeCamera(_OpenCVCamera):
                 dx = (j22 * ex - j12 * ey) / det
                 dy = (j11 * ey - j21 * ex) / det
             dx, dy = np.where(np.isfinite(dx), dx, 0.0), np.where(np.isfinite(dy), dy, 0.0)
+            # a step beyond the imaged range (past the fold) is shortened to land inside it
+            nr = np.hypot(x - dx, y - dy)
+            shrink = np.where(nr > rmax, 0.5, 1.0)
+            dx, dy = dx * shrink, dy * shrink
             x, y = x - dx, y - dy
             if np.all(np.abs(dx) + np.abs(dy) <= 1e-16 * (1 + np.abs(x) + np.abs(y))):
                 break
         fx_, fy_ = self._distort(x, y)
         res = np.hypot(fx_ - xd, fy_ - yd)
-        ok &= (res <= 1e-11 * (1 + rd)) & (np.hypot(x, y) <= rmax * (1 + 1e-9))
+        ok = (res <= 1e-11 * (1 + rd)) & (np.hypot(x, y) <= rmax * (1 + 1e-9))
         d = np.stack([x, y, np.ones_like(x)], axis=-1)
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         d[~ok] = np.nan
