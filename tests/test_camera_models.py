@@ -185,7 +185,7 @@ def test_dome_round_trips_off_axis_and_tilted(cam):
 
 
 def test_refraction_obeys_snell_off_axis():
-    """The ray found from a dome point, traced forwards by hand, refracts by Snell's law and reaches the point."""
+    """The ray found for a dome point, traced forwards by hand, obeys Snell's law and reaches the point."""
     cam = CAMERAS[1]
     pts = dome_points(np.random.default_rng(6), 50, 70.0)
     px = cam.project(pts, SENSOR)
