@@ -152,6 +152,19 @@ class _OpenCVCamera(Camera):
         c.flags.writeable = False
         return c
 
+    @staticmethod
+    def _invert_radial(g, rd: np.ndarray, xmax: float) -> tuple[np.ndarray, float]:
+        """Root ``x`` in ``[0, xmax]`` of ``g(x) = min(rd, g(xmax))`` for increasing ``g``; and ``g(xmax)``."""
+        gmax = float(g(np.array(xmax))[0])
+        target = np.minimum(rd, gmax).ravel()
+
+        def fun(x):
+            v, dv = g(x)
+            return v - target, dv
+
+        x = _bracketed_newton(fun, np.zeros_like(target), np.full_like(target, xmax), np.minimum(target, xmax))
+        return x.reshape(rd.shape), gmax
+
     def _pixel(self, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:
         return np.stack([self.fy * yd + self.cy, self.fx * xd + self.cx], axis=-1)
 
@@ -282,16 +295,8 @@ class PinholeCamera(_OpenCVCamera):
         xd, yd = self._normalised(p)
         rd = np.hypot(xd, yd)
         rmax = self.max_radius
-        gmax = self._radial(np.array(rmax))[0]
         # radial inverse for a start, then Newton on the full 2-D map
-        target = np.minimum(rd, gmax).ravel()
-
-        def fun(r):
-            g, dg, _ = self._radial(r)
-            return g - target, dg
-
-        r0 = _bracketed_newton(fun, np.zeros_like(target), np.full_like(target, rmax),
-                               np.minimum(target, rmax)).reshape(rd.shape)
+        r0, _ = self._invert_radial(lambda r: self._radial(r)[:2], rd, rmax)
         scale = np.divide(r0, rd, out=np.ones_like(rd), where=rd > 0)
         x, y = xd * scale, yd * scale
         for _ in range(50):
@@ -387,16 +392,7 @@ class OpenCVFisheyeCamera(_OpenCVCamera):
     def _camera_ray_from_pixel(self, p: np.ndarray) -> np.ndarray:
         xd, yd = self._normalised(p)
         rd = np.hypot(xd, yd)
-        tmax = self.max_angle
-        tdmax = self._theta_d(np.array(tmax))[0]
-        target = np.minimum(rd, tdmax).ravel()
-
-        def fun(t):
-            g, dg = self._theta_d(t)
-            return g - target, dg
-
-        theta = _bracketed_newton(fun, np.zeros_like(target), np.full_like(target, tmax),
-                                  np.minimum(target, tmax)).reshape(rd.shape)
+        theta, tdmax = self._invert_radial(self._theta_d, rd, self.max_angle)
         s = np.divide(np.sin(theta), rd, out=np.zeros_like(rd), where=rd > 0)
         d = np.stack([xd * s, yd * s, np.cos(theta)], axis=-1)
         d[rd > tdmax] = np.nan
