@@ -1,6 +1,6 @@
 """optitact: optical three-axis tactile sensing.
 
-Sensor models, the closed-form camera, the contact model and the CCD model are
+Sensor models, the closed-form camera models, the contact model and the CCD model are
 importable at once; the Mitsuba renderer lives in :mod:`optitact.render` and
 is imported only when used (``import optitact`` never imports mitsuba).
 """
@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import importlib
 
-from .camera import FisheyeCamera, dome_from_pixel, pixel_from_dome
+from .camera import Camera, FisheyeCamera, camera_from_dict, dome_from_pixel, pixel_from_dome
+from .camera_models import OpenCVFisheyeCamera, PinholeCamera, read_opencv_calibration
 from .ccd import CCD, IntensityScale
 from .contact import Contacts, cone_loads, contact_patches
 from .errors import InputError, OptitactError, OptitactWarning, RenderError, ShapeError
@@ -21,21 +22,26 @@ __version__ = "0.1.0"
 
 __all__ = [
     "CCD",
+    "Camera",
     "Contacts",
     "DomeSensor",
     "FisheyeCamera",
     "InputError",
     "IntensityScale",
+    "OpenCVFisheyeCamera",
     "OptitactError",
     "OptitactWarning",
     "Pipeline",
+    "PinholeCamera",
     "Readings",
     "RenderError",
     "ShapeError",
     "cone_loads",
+    "camera_from_dict",
     "contact_patches",
     "dome_from_pixel",
     "pixel_from_dome",
+    "read_opencv_calibration",
 ]
 
 _SUBPACKAGES = ("render", "calib", "forces", "live")

@@ -1,13 +1,24 @@
-"""Closed-form camera model: an equidistant fisheye inside the dome, looking up its axis.
+"""Closed-form camera models seen through the dome: the default on-axis equidistant fisheye and OpenCV's.
+
+:class:`FisheyeCamera` (the default) is an equidistant fisheye on the dome axis
+looking up it; :class:`optitact.camera_models.PinholeCamera` and
+:class:`optitact.camera_models.OpenCVFisheyeCamera` take intrinsics, distortion
+and a pose exactly as OpenCV defines them. Every model is a :class:`Camera`:
+:func:`pixel_from_dome` and :func:`dome_from_pixel` work for all of them.
 
 Convention
 ----------
 Image indices are ``(row, col)`` with the origin at the centre of the top-left
 pixel, as in scikit-image and SciPy; a pixel covers ``[col - 0.5, col + 0.5)``.
-Physical coordinates are global ``(x, y, z)`` in mm (see :mod:`optitact.sensor`).
-The camera sits on the dome axis at ``(0, 0, z)`` and looks along +z; image
-columns grow with global +x and rows with global +y (a right-handed camera
-frame seen from below, not mirrored).
+OpenCV's pixel ``(u, v)`` is ``(col, row)`` (the same origin).
+Physical coordinates are global ``(x, y, z)`` in mm (see :mod:`optitact.sensor`),
+the *dome frame*: z up the dome axis, the base plane at z = 0.
+The *camera frame* is OpenCV's: x right (growing columns), y down (growing
+rows), z forward along the optical axis. A camera's pose maps dome points to
+camera points as OpenCV's ``rvec``/``tvec`` do: ``X_cam = R X_dome + t``.
+The default camera sits on the dome axis at ``(0, 0, z)`` and looks along +z
+with ``R = I``: image columns grow with global +x and rows with global +y (a
+right-handed camera frame seen from below, not mirrored).
 """
 
 from __future__ import annotations
@@ -15,8 +26,10 @@ from __future__ import annotations
 import math
 import numbers
 import os
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
+from typing import ClassVar
 
 import numpy as np
 
@@ -24,8 +37,8 @@ from ._validate import check_keys, check_type, finite, integer, positive, real_a
 from .errors import InputError
 from .sensor import DomeSensor
 
-__all__ = ["FisheyeCamera", "MAX_FRAME_PIXELS", "RadialMap", "check_frame_size", "pixel_from_dome",
-           "dome_from_pixel", "radial_map"]
+__all__ = ["Camera", "FisheyeCamera", "MAX_FRAME_PIXELS", "RadialMap", "camera_from_dict", "check_frame_size",
+           "pixel_from_dome", "dome_from_pixel", "radial_map"]
 
 #: Largest distance (mm) a point given to :func:`pixel_from_dome` may lie off the outer surface.
 SURFACE_TOLERANCE = 1e-4
@@ -70,9 +83,187 @@ def check_frame_size(width: int, height: int, source: str = "frame") -> None:
             f"allow more")
 
 
+#: Camera models by the ``model`` key of their :meth:`Camera.to_dict` (filled by the classes).
+CAMERA_MODELS: dict[str, type] = {}
+
+
+class Camera:
+    """Common interface of the camera models: intrinsics, distortion and pose, seen through the dome.
+
+    Subclasses are frozen dataclasses with ``width`` and ``height`` (pixels)
+    and a ``model`` name; they are compared and hashed by value (a pipeline's
+    set-up is cached per sensor and camera). :class:`FisheyeCamera` is the
+    default; :mod:`optitact.camera_models` has OpenCV's pinhole and fisheye
+    models.
+
+    Convention
+    ----------
+    Pixels are ``(row, col)``; rays and points are in the dome frame (mm);
+    :attr:`rotation` ``R`` and the camera's centre :attr:`position` ``C``
+    relate the frames: ``X_cam = R (X_dome - C)`` with the camera frame
+    OpenCV's (x right, y down, z forward).
+    """
+
+    model: ClassVar[str] = ""
+    width: int
+    height: int
+
+    # ------------------------------------------------------------------ what a model provides
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) rotation from the dome frame to the camera frame (OpenCV's ``R``)."""
+        raise NotImplementedError
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) the camera's projection centre in the dome frame (mm): ``-R^T t``."""
+        raise NotImplementedError
+
+    def _pixel_from_camera_ray(self, d: np.ndarray) -> np.ndarray:
+        """Pixels ``(row, col)`` of camera-frame directions ``(..., 3)``; NaN where the model sees nothing."""
+        raise NotImplementedError
+
+    def _camera_ray_from_pixel(self, p: np.ndarray) -> np.ndarray:
+        """Unit camera-frame directions of pixels ``(..., 2)``; NaN where no ray maps there."""
+        raise NotImplementedError
+
+    def to_dict(self) -> dict:
+        """Return the parameters as a JSON-friendly dict (with its ``model`` key)."""
+        d = {"model": self.model}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            d[f.name] = list(v) if isinstance(v, tuple) else v
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Camera:
+        """Build a camera from :meth:`to_dict` output, the model chosen by its ``model`` key.
+
+        A dict without ``model`` is today's :class:`FisheyeCamera` (setup
+        files and calibrations written before the other models existed);
+        called on a subclass, the dict must be of that model.
+
+        Raises
+        ------
+        TypeError
+            For a non-mapping.
+        InputError
+            For an unknown model (listing the valid ones), a model other than
+            the class's, unknown keys or invalid values.
+        """
+        if not isinstance(d, Mapping):
+            raise TypeError(f"camera parameters must be a dict, got {type(d).__name__}")
+        model = d.get("model", "equidistant" if cls is Camera else cls.model)
+        if model not in CAMERA_MODELS:
+            raise InputError(f"camera parameters: unknown model {model!r}; valid: {sorted(CAMERA_MODELS)}")
+        if cls is Camera:
+            return CAMERA_MODELS[model].from_dict(d)
+        if model != cls.model:
+            raise InputError(f"camera parameters: model {model!r} is not a {cls.__name__} ({cls.model!r}); "
+                             f"read it with optitact.camera.camera_from_dict")
+        params = {k: v for k, v in d.items() if k != "model"}
+        return cls(**check_keys(params, [f.name for f in fields(cls)], "camera parameters", noun="parameter"))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(height, width)``."""
+        return (self.height, self.width)
+
+    # ------------------------------------------------------------------ rays
+    def ray_from_pixel(self, pixels) -> np.ndarray:
+        """Unit ray directions (dome frame) for pixel positions ``(row, col)``, shape (..., 3).
+
+        Undistortion is exact (Newton's method to rounding, not OpenCV's fixed
+        iteration count); pixels no ray maps to (beyond the distortion's
+        monotone range) give NaN rows.
+        """
+        p = finite(shape_tail(real_array(pixels, "pixels"), (2,), "pixels", "(..., 2) (row, col)"), "pixels")
+        return self._camera_ray_from_pixel(p) @ self.rotation
+
+    def pixel_from_ray(self, directions) -> np.ndarray:
+        """Pixel positions ``(row, col)`` of ray directions (dome frame, need not be unit), shape (..., 2).
+
+        Directions the model cannot image (behind a pinhole camera, beyond
+        the distortion's monotone range) give NaN rows.
+        """
+        d = finite(shape_tail(real_array(directions, "directions"), (3,), "directions", "(..., 3)"),
+                   "directions")
+        return self._pixel_from_camera_ray(d @ self.rotation.T)
+
+    def pixel_from_point(self, points) -> np.ndarray:
+        """Pixels ``(row, col)`` of dome-frame points (mm) seen straight, without the dome.
+
+        The same as ``cv2.projectPoints`` (``cv2.fisheye.projectPoints`` for
+        the fisheye model) with the camera's ``rvec``, ``tvec``, ``K`` and
+        ``D``, swapped to ``(row, col)``; NaN where the model sees nothing.
+        """
+        p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
+        return self.pixel_from_ray(p - self.position)
+
+    # ------------------------------------------------------------------ through the dome
+    def project(self, points, sensor: DomeSensor, *, outside: str = "raise",
+                refraction: bool = True) -> np.ndarray:
+        """Pixels ``(row, col)`` where points on the outer dome surface appear; see :func:`pixel_from_dome`."""
+        return pixel_from_dome(points, sensor=sensor, camera=self, outside=outside, refraction=refraction)
+
+    def unproject(self, pixels, sensor: DomeSensor, *, outside: str = "raise",
+                  refraction: bool = True) -> np.ndarray:
+        """Outer-surface dome points seen at pixels ``(row, col)``; see :func:`dome_from_pixel`."""
+        return dome_from_pixel(pixels, sensor=sensor, camera=self, outside=outside, refraction=refraction)
+
+    def visible(self, points, sensor: DomeSensor) -> np.ndarray:
+        """Bool (...,): outer-surface points this camera sees through the inner surface.
+
+        Points below the base plane are not seen; a seen point may still fall
+        outside the image.
+        """
+        check_type(sensor, DomeSensor, "sensor")
+        p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
+        out = np.zeros(p.shape[:-1], bool)
+        up = p[..., 2] >= 0
+        if up.any():
+            out[up] = np.isfinite(_generic_pixel_from_dome(p[up], sensor, self, True)).all(axis=-1)
+        return out
+
+    def dome_mask(self, sensor: DomeSensor) -> np.ndarray:
+        """(H, W) bool: pixel centres whose ray reaches the outer dome surface (z >= 0)."""
+        check_type(sensor, DomeSensor, "sensor")
+        rows, cols = np.mgrid[0:self.height, 0:self.width]
+        pts = dome_from_pixel(np.stack([rows, cols], axis=-1).astype(np.float64), sensor=sensor, camera=self,
+                              outside="nan")
+        return np.isfinite(pts[..., 0])
+
+    def max_polar_angle(self, sensor: DomeSensor) -> float:
+        """The largest polar angle (rad) up to which the camera sees the dome at every azimuth.
+
+        For an on-axis camera the whole cap within it is visible and nothing
+        beyond it; for an off-axis or tilted camera the visible region is not
+        a cap and this is its largest inscribed cap (720 azimuths, each
+        bisected to 1e-12 rad): use :meth:`visible` for single points.
+        """
+        check_type(sensor, DomeSensor, "sensor")
+        return _max_polar_angle_cached(self, sensor)
+
+
+def camera_from_dict(d: dict) -> Camera:
+    """Build any camera model from its :meth:`Camera.to_dict` (no ``model`` key: :class:`FisheyeCamera`)."""
+    return Camera.from_dict(d)
+
+
+def rotation_from_rvec(rvec) -> np.ndarray:
+    """Rotation matrix of a Rodrigues vector (axis times angle, rad), as ``cv2.Rodrigues``."""
+    r = np.asarray(rvec, dtype=np.float64).reshape(3)
+    angle = float(np.linalg.norm(r))
+    if angle == 0.0:
+        return np.eye(3)
+    k = r / angle
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * kx + (1.0 - math.cos(angle)) * (kx @ kx)
+
+
 @dataclass(frozen=True)
-class FisheyeCamera:
-    """Equidistant fisheye camera (``r = f * alpha``) on the dome axis.
+class FisheyeCamera(Camera):
+    """Equidistant fisheye camera (``r = f * alpha``) on the dome axis: the default camera.
 
     Parameters
     ----------
@@ -98,6 +289,7 @@ class FisheyeCamera:
     True
     """
 
+    model: ClassVar[str] = "equidistant"
     width: int = 640
     height: int = 480
     fov_deg: float = 140.0
@@ -117,18 +309,36 @@ class FisheyeCamera:
         object.__setattr__(self, "z", float(self.z))
 
     def to_dict(self) -> dict:
-        """Return the parameters as a JSON-friendly dict."""
+        """Return the parameters as a JSON-friendly dict.
+
+        Without a ``model`` key (as before the other models existed, so
+        fingerprints of calibrations made for it are unchanged): a camera dict
+        without one is this model.
+        """
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> FisheyeCamera:
-        """Build a camera from :meth:`to_dict` output; unknown keys are a ValueError."""
+        """Build a camera from :meth:`to_dict` output; unknown keys are a ValueError.
+
+        A ``model`` key, if present, must be ``"equidistant"``.
+        """
+        if isinstance(d, Mapping) and "model" in d:
+            if d["model"] != cls.model:
+                raise InputError(f"camera parameters: model {d['model']!r} is not a FisheyeCamera "
+                                 f"('equidistant'); read it with optitact.camera.camera_from_dict")
+            d = {k: v for k, v in d.items() if k != "model"}
         return cls(**check_keys(d, [f.name for f in fields(cls)], "camera parameters", noun="parameter"))
 
     @property
-    def shape(self) -> tuple[int, int]:
-        """Image shape ``(height, width)``."""
-        return (self.height, self.width)
+    def rotation(self) -> np.ndarray:
+        """(3, 3) identity: the camera frame is the dome frame's orientation."""
+        return np.eye(3)
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) ``(0, 0, z)``: on the dome axis."""
+        return np.array([0.0, 0.0, self.z])
 
     @property
     def center(self) -> tuple[float, float]:
@@ -163,6 +373,13 @@ class FisheyeCamera:
         phi = np.arctan2(d[..., 1], d[..., 0])
         return self._pixel_from_polar(alpha, phi)
 
+    def _pixel_from_camera_ray(self, d: np.ndarray) -> np.ndarray:
+        alpha = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
+        return self._pixel_from_polar(alpha, np.arctan2(d[..., 1], d[..., 0]))
+
+    def _camera_ray_from_pixel(self, p: np.ndarray) -> np.ndarray:
+        return self.ray_from_pixel(p)
+
     def _polar_from_pixel(self, pixels) -> tuple[np.ndarray, np.ndarray]:
         p = finite(shape_tail(real_array(pixels, "pixels"), (2,), "pixels", "(..., 2) (row, col)"),
                    "pixels")
@@ -176,13 +393,12 @@ class FisheyeCamera:
         return np.stack([cy + r * np.sin(phi), cx + r * np.cos(phi)], axis=-1)
 
     # ------------------------------------------------------------------ through the dome
-    def project(self, points, sensor: DomeSensor) -> np.ndarray:
-        """Pixels ``(row, col)`` where points on the outer dome surface appear; see :func:`pixel_from_dome`."""
-        return pixel_from_dome(points, sensor=sensor, camera=self)
-
-    def unproject(self, pixels, sensor: DomeSensor, *, outside: str = "raise") -> np.ndarray:
-        """Outer-surface dome points seen at pixels ``(row, col)``; see :func:`dome_from_pixel`."""
-        return dome_from_pixel(pixels, sensor=sensor, camera=self, outside=outside)
+    def visible(self, points, sensor: DomeSensor) -> np.ndarray:
+        """Bool (...,): outer-surface points seen through the inner surface (polar angle <= the limit)."""
+        check_type(sensor, DomeSensor, "sensor")
+        p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
+        theta = np.arccos(np.clip(p[..., 2] / sensor.outer_radius, -1.0, 1.0))
+        return theta <= self.max_polar_angle(sensor)
 
     def dome_mask(self, sensor: DomeSensor) -> np.ndarray:
         """(H, W) bool: pixel centres whose ray reaches the outer dome surface (z >= 0)."""
@@ -198,6 +414,9 @@ class FisheyeCamera:
         and camera. See :func:`radial_map`.
         """
         return radial_map(sensor, self.z).theta_max
+
+
+CAMERA_MODELS[FisheyeCamera.model] = FisheyeCamera
 
 
 class RadialMap:
@@ -265,36 +484,191 @@ def _radial_map_cached(r_in: float, r_out: float, n: float, zc: float) -> Radial
     return RadialMap(r_in, r_out, n, zc)
 
 
-def radial_map(sensor: DomeSensor, zc: float) -> RadialMap:
+def radial_map(sensor: DomeSensor, zc: float, *, refraction: bool = True) -> RadialMap:
     """The radial map of an on-axis camera at height ``zc`` (mm) inside ``sensor`` (cached).
 
     ``radial_map(sensor, camera.z).theta(alpha)`` is the polar angle of the
     outer-surface point seen by a ray at angle ``alpha`` from the axis;
     ``theta_max`` and ``alpha_max`` bound what the camera sees (see
-    :meth:`FisheyeCamera.max_polar_angle`).
+    :meth:`FisheyeCamera.max_polar_angle`). ``refraction=False`` gives the
+    map of straight rays (a refractive index of 1).
     """
     check_type(sensor, DomeSensor, "sensor")
     return _radial_map_cached(sensor.inner_radius, sensor.outer_radius,
-                              sensor.refractive_index, float(zc))
+                              sensor.refractive_index if refraction else 1.0, float(zc))
 
 
-def _check_optics(sensor, camera) -> None:
+def _check_optics(sensor, camera, outside: str = "raise") -> None:
     check_type(sensor, DomeSensor, "sensor")
-    check_type(camera, FisheyeCamera, "camera")
+    check_type(camera, Camera, "camera")
+    if outside not in ("raise", "nan"):
+        raise InputError(f"outside must be 'raise' or 'nan', got {outside!r}")
 
 
-def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.ndarray:
+def _index(sensor: DomeSensor, refraction) -> float:
+    if not isinstance(refraction, (bool, np.bool_)):
+        raise TypeError(f"refraction must be True or False, got {type(refraction).__name__}")
+    return sensor.refractive_index if refraction else 1.0
+
+
+def _bracketed_newton(fun, lo: np.ndarray, hi: np.ndarray, x: np.ndarray, iters: int = 200) -> np.ndarray:
+    """Roots of increasing functions ``fun(x) -> (f, f')`` with ``f(lo) <= 0 <= f(hi)``, to rounding.
+
+    Newton's steps, replaced by bisection when one leaves the bracket; the
+    bracket shrinks around every root, so it cannot diverge.
+    """
+    lo, hi, x = lo.copy(), hi.copy(), x.copy()
+    for _ in range(iters):
+        f, fp = fun(x)
+        neg = f < 0
+        lo = np.where(neg, x, lo)
+        hi = np.where(neg, hi, x)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn = x - f / fp
+        bad = ~np.isfinite(xn) | (xn < lo) | (xn > hi)
+        xn = np.where(bad, 0.5 * (lo + hi), xn)
+        done = (np.abs(xn - x) <= 2e-16 * np.maximum(1.0, np.abs(x))) | (f == 0)
+        x = xn
+        if done.all():
+            break
+    return x
+
+
+def _trace(c: np.ndarray, d: np.ndarray, r_in: float, r_out: float, n: float) -> tuple[np.ndarray, np.ndarray]:
+    """Outer-surface points reached by rays ``c + t d`` (dome frame) through the inner sphere, and validity.
+
+    Closed form: the ray meets the inner sphere at ``Q`` (the camera is
+    inside it), refracts by Snell's law in vector form and meets the outer
+    sphere at ``P``; valid where ``Q`` and ``P`` lie at ``z >= 0``.
+    """
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    b = d @ c
+    t = -b + np.sqrt(b * b - (c @ c - r_in * r_in))
+    q = c + t[..., None] * d
+    nh = q / r_in
+    cos_i = np.sum(d * nh, axis=-1)
+    eta = 1.0 / n
+    cos_t = np.sqrt(1.0 - eta * eta * (1.0 - cos_i * cos_i))
+    tr = eta * d + (cos_t - eta * cos_i)[..., None] * nh
+    qt = np.sum(q * tr, axis=-1)
+    s = -qt + np.sqrt(qt * qt - r_in * r_in + r_out * r_out)
+    p = q + s[..., None] * tr
+    return p, (q[..., 2] >= 0) & (p[..., 2] >= 0)
+
+
+def _rays_to(p: np.ndarray, c: np.ndarray, r_in: float, n: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit rays from ``c`` that reach outer-surface points ``p`` (N, 3) after refraction, and validity.
+
+    The path ``c -> Q -> p`` lies in the plane through the sphere's centre,
+    ``c`` and ``p`` (the normal at ``Q`` passes through the centre). In that
+    plane ``Q = r_in (cos psi e1 + sin psi e2)`` with ``e1`` towards ``p``
+    and ``c = (c1, c2)``, ``c2 >= 0``; Snell's law is the root of the
+    increasing ``f(psi) = sin_i - n sin_t =
+    (c1 sin psi - c2 cos psi) / |Q - c| + n |p| sin psi / |p - Q|``,
+    bracketed by 0 (``f <= 0``) and the straight line's ``psi_s``
+    (``f >= 0``), found to rounding by bracketed Newton steps.
+    """
+    rp = np.linalg.norm(p, axis=-1)
+    e1 = p / rp[:, None]
+    c1 = e1 @ c
+    perp = c - c1[:, None] * e1
+    c2 = np.linalg.norm(perp, axis=-1)
+    small = c2 <= 1e-15 * r_in
+    # any unit vector normal to e1 where c lies on the line through p (then psi = 0)
+    alt = np.cross(e1, np.where(np.abs(e1[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    e2 = np.where(small[:, None], alt, perp) / np.where(small, np.linalg.norm(alt, axis=-1), c2)[:, None]
+    cc = c @ c
+    u = p - c
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    b = u @ c
+    qs = c + (-b + np.sqrt(b * b - cc + r_in * r_in))[:, None] * u
+    psi_s = np.maximum(np.arctan2(np.sum(qs * e2, -1), np.sum(qs * e1, -1)), 0.0)
+
+    def fun(psi):
+        sn, cs = np.sin(psi), np.cos(psi)
+        a, da = c1 * sn - c2 * cs, c1 * cs + c2 * sn
+        l1 = np.sqrt(r_in * r_in + cc - 2.0 * r_in * da)
+        dl1 = r_in * a / l1
+        bb, dbb = n * rp * sn, n * rp * cs
+        l2 = np.sqrt(rp * rp + r_in * r_in - 2.0 * rp * r_in * cs)
+        dl2 = rp * r_in * sn / l2
+        return a / l1 + bb / l2, (da * l1 - a * dl1) / (l1 * l1) + (dbb * l2 - bb * dl2) / (l2 * l2)
+
+    psi = np.where(small, 0.0, _bracketed_newton(fun, np.zeros_like(psi_s), psi_s, psi_s))
+    q = r_in * (np.cos(psi)[:, None] * e1 + np.sin(psi)[:, None] * e2)
+    d = q - c
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return d, q[:, 2] >= 0
+
+
+def _check_inside(sensor: DomeSensor, c: np.ndarray) -> None:
+    if not np.linalg.norm(c) < sensor.inner_radius:
+        raise InputError(f"the camera's position {np.round(c, 6).tolist()} mm must lie inside the dome's "
+                         f"inner sphere (radius {sensor.inner_radius} mm)")
+
+
+def _generic_pixel_from_dome(p: np.ndarray, sensor: DomeSensor, camera: Camera, refraction) -> np.ndarray:
+    """Pixels of outer-surface points (..., 3) for any model; NaN for points it does not see."""
+    n = _index(sensor, refraction)
+    c = camera.position
+    _check_inside(sensor, c)
+    flat = p.reshape(-1, 3)
+    if c[0] == 0.0 and c[1] == 0.0:  # on the axis: the radial map, as fast as the default camera
+        rmap = radial_map(sensor, c[2], refraction=bool(refraction))
+        theta = np.arctan2(np.hypot(flat[:, 0], flat[:, 1]), flat[:, 2])
+        phi = np.arctan2(flat[:, 1], flat[:, 0])
+        ok = theta <= rmap.theta_max + 1e-12
+        alpha = rmap.alpha(np.minimum(theta, rmap.theta_max))
+        d = np.stack([np.sin(alpha) * np.cos(phi), np.sin(alpha) * np.sin(phi), np.cos(alpha)], axis=-1)
+    else:
+        d, ok = _rays_to(flat, c, sensor.inner_radius, n)
+    px = camera._pixel_from_camera_ray(d @ camera.rotation.T)
+    px[~ok] = np.nan
+    return px.reshape(p.shape[:-1] + (2,))
+
+
+@lru_cache(maxsize=32)
+def _max_polar_angle_cached(camera: Camera, sensor: DomeSensor) -> float:
+    phi = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
+    r = sensor.outer_radius
+
+    def seen(theta):
+        pts = r * np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
+        return np.isfinite(_generic_pixel_from_dome(pts, sensor, camera, True)).all(axis=-1)
+
+    lo, hi = np.zeros_like(phi), np.full_like(phi, np.pi / 2)
+    if not seen(lo).all():
+        return 0.0
+    top = seen(hi)
+    lo[top] = hi[top]
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        ok = seen(mid)
+        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+    return float(lo.min())
+
+
+def pixel_from_dome(points, *, sensor: DomeSensor, camera: Camera, outside: str = "raise",
+                    refraction: bool = True) -> np.ndarray:
     """Project points on the outer dome surface into the image, seen through the dome.
 
     Parameters
     ----------
     points : (..., 3) array_like
         Global points (mm) on the outer surface (within ``SURFACE_TOLERANCE``),
-        visible through the inner surface: polar angle up to ``theta_max``
-        (88.3 deg for the default sensor and camera; points nearer the base
-        are seen only through the rim).
+        visible through the inner surface: for the default camera polar angle
+        up to ``theta_max`` (88.3 deg for the default sensor; points nearer
+        the base are seen only through the rim); see :meth:`Camera.visible`.
     sensor : DomeSensor
-    camera : FisheyeCamera
+    camera : Camera
+        Any camera model (:class:`FisheyeCamera`, or those of
+        :mod:`optitact.camera_models`).
+    outside : {"raise", "nan"}
+        What to do with points the camera does not see: raise ``InputError``
+        (default) or return NaN rows for them.
+    refraction : bool
+        False: straight rays, as if the dome's refractive index were 1 (then
+        the projection is OpenCV's ``projectPoints`` of the points).
 
     Returns
     -------
@@ -308,12 +682,17 @@ def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.
     ``C + t d`` meets the inner sphere at ``Q``, refracts by Snell's law
     (``n_air sin i = n sin t``, vector form
     ``t = eta d + (cos_t - eta cos_i) n_hat``, ``eta = 1/n``) and meets the outer
-    sphere at ``P``. By symmetry ``P``'s azimuth equals the ray's and its polar
-    angle is a monotone function ``theta(alpha)`` of the ray angle, which is
-    inverted by Newton's method from a tabulated start; the round trip with
+    sphere at ``P``. For a camera on the axis ``P``'s azimuth equals the ray's
+    and its polar angle is a monotone function ``theta(alpha)`` of the ray
+    angle, which is inverted by Newton's method from a tabulated start. Off
+    the axis, ``C``, ``Q``, ``P`` and the dome's centre are coplanar and
+    ``Q`` is the root of Snell's law along the inner circle of that plane
+    (bracketed Newton, see ``_rays_to``). The ray is then mapped through
+    the camera's rotation and lens model. The round trip with
     :func:`dome_from_pixel` is exact to ~1e-12 mm.
     """
-    _check_optics(sensor, camera)
+    _check_optics(sensor, camera, outside)
+    n = _index(sensor, refraction)
     p = finite(shape_tail(real_array(points, "points"), (3,), "points", "(..., 3)"), "points")
     radius = np.linalg.norm(p, axis=-1)
     off = np.abs(radius - sensor.outer_radius)
@@ -324,21 +703,37 @@ def pixel_from_dome(points, *, sensor: DomeSensor, camera: FisheyeCamera) -> np.
         )
     if np.any(p[..., 2] < -SURFACE_TOLERANCE):
         raise InputError(f"points must have z >= 0 (on the dome), got z = {p[..., 2].min():.6g}")
+    if not isinstance(camera, FisheyeCamera):
+        px = _generic_pixel_from_dome(p, sensor, camera, refraction)
+        bad = ~np.isfinite(px).all(axis=-1)
+        if outside == "raise" and bad.any():
+            i = np.unravel_index(np.argmax(bad), bad.shape)
+            raise InputError(f"points must be visible to this camera through the inner surface, got "
+                             f"{np.round(p[i], 6).tolist()} (and {int(bad.sum()) - 1} more); see "
+                             f"Camera.visible")
+        return px
     theta = np.arctan2(np.hypot(p[..., 0], p[..., 1]), p[..., 2])
     phi = np.arctan2(p[..., 1], p[..., 0])
-    rmap = radial_map(sensor, camera.z)
-    if np.any(theta > rmap.theta_max + 1e-12):
+    rmap = radial_map(sensor, camera.z) if n == sensor.refractive_index else radial_map(
+        sensor, camera.z, refraction=False)
+    bad = theta > rmap.theta_max + 1e-12
+    if outside == "raise" and np.any(bad):
         raise InputError(
             f"points must be visible through the inner surface (polar angle <= "
             f"{math.degrees(rmap.theta_max):.3f} deg for this camera), got "
             f"{math.degrees(theta.max()):.3f} deg"
         )
+    if np.any(bad):
+        alpha = rmap.alpha(np.minimum(theta, rmap.theta_max))
+        px = camera._pixel_from_polar(alpha, phi)
+        px[bad] = np.nan
+        return px
     alpha = rmap.alpha(theta)
     return camera._pixel_from_polar(alpha, phi)
 
 
-def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: FisheyeCamera,
-                    outside: str = "raise") -> np.ndarray:
+def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: Camera,
+                    outside: str = "raise", refraction: bool = True) -> np.ndarray:
     """Outer-surface dome points seen at pixel positions ``(row, col)``.
 
     Parameters
@@ -346,11 +741,14 @@ def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: FisheyeCamera,
     pixels : (..., 2) array_like
         Pixel positions ``(row, col)`` (sub-pixel allowed).
     sensor : DomeSensor
-    camera : FisheyeCamera
+    camera : Camera
     outside : {"raise", "nan"}
         What to do with pixels whose ray misses the dome (passes below its
-        base): raise ``InputError`` (default) or return NaN rows for them
-        (use :meth:`FisheyeCamera.dome_mask` to find them beforehand).
+        base, or no ray maps there): raise ``InputError`` (default) or return
+        NaN rows for them (use :meth:`Camera.dome_mask` to find them
+        beforehand).
+    refraction : bool
+        False: straight rays, as if the dome's refractive index were 1.
 
     Returns
     -------
@@ -359,13 +757,32 @@ def dome_from_pixel(pixels, *, sensor: DomeSensor, camera: FisheyeCamera,
 
     Notes
     -----
-    See :func:`pixel_from_dome` for the optics.
+    See :func:`pixel_from_dome` for the optics: here the closed form runs
+    forwards (undistort the pixel exactly, rotate the ray into the dome
+    frame, intersect the inner sphere, refract, intersect the outer sphere).
     """
-    _check_optics(sensor, camera)
-    if outside not in ("raise", "nan"):
-        raise InputError(f"outside must be 'raise' or 'nan', got {outside!r}")
+    _check_optics(sensor, camera, outside)
+    n = _index(sensor, refraction)
+    if not isinstance(camera, FisheyeCamera):
+        p = finite(shape_tail(real_array(pixels, "pixels"), (2,), "pixels", "(..., 2) (row, col)"), "pixels")
+        c = camera.position
+        _check_inside(sensor, c)
+        d = camera._camera_ray_from_pixel(p) @ camera.rotation
+        nod = ~np.isfinite(d).all(axis=-1)
+        with np.errstate(invalid="ignore"):
+            pts, ok = _trace(c, np.where(nod[..., None], [0.0, 0.0, 1.0], d), sensor.inner_radius,
+                             sensor.outer_radius, n)
+        miss = nod | ~ok
+        if outside == "raise" and miss.any():
+            i = np.unravel_index(np.argmax(miss), miss.shape)
+            why = "no ray of the lens model maps there" if nod[i] else "its ray passes below the dome's base"
+            raise InputError(f"pixels must see the dome, got {np.round(p[i], 6).tolist()}: {why} (and "
+                             f"{int(miss.sum()) - 1} more); see Camera.dome_mask")
+        pts[miss] = np.nan
+        return pts
     alpha, phi = camera._polar_from_pixel(pixels)
-    rmap = radial_map(sensor, camera.z)
+    rmap = radial_map(sensor, camera.z) if n == sensor.refractive_index else radial_map(
+        sensor, camera.z, refraction=False)
     miss = alpha > rmap.alpha_max * (1 + 1e-12)
     if outside == "raise" and np.any(miss):
         raise InputError(

@@ -40,7 +40,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ._validate import integer, positive
-from .camera import FisheyeCamera
+from .camera import Camera
 from .ccd import _frame_bits, dn_ratio
 from .errors import InputError
 from .readings import Readings
@@ -154,7 +154,9 @@ class Pipeline:
     Parameters
     ----------
     sensor : DomeSensor
-    camera : FisheyeCamera
+    camera : Camera
+        Any camera model (:class:`optitact.FisheyeCamera`, the default, or those of
+        :mod:`optitact.camera_models`).
     method : {"fast", "reference"}
         ``"fast"`` (default): the folded per-pixel weights; ``"reference"``:
         the steps one after another on the whole frame. They compute the
@@ -253,7 +255,7 @@ class Pipeline:
     ((41,), False)
     """
 
-    def __init__(self, sensor: DomeSensor, camera: FisheyeCamera, *, method: str = "fast",
+    def __init__(self, sensor: DomeSensor, camera: Camera, *, method: str = "fast",
                  baseline=None, filter: str = "none", filter_size: float | None = None,
                  noise_sigma: float = 0.5, k: float = 3.0, min_pixels: float = 3.0,
                  saturation: float | None = None, radius: float | None = None,
@@ -261,8 +263,9 @@ class Pipeline:
                  readings_bits: int | None = None) -> None:
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
-        if not isinstance(camera, FisheyeCamera):
-            raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+        if not isinstance(camera, Camera):
+            raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__} (or another camera "
+                            f"model of optitact.camera: PinholeCamera, OpenCVFisheyeCamera)")
         if method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {method!r}")
         if filter not in FILTERS:
@@ -432,7 +435,7 @@ class Pipeline:
         return self.replace(baseline=frames)
 
     @classmethod
-    def from_noload(cls, sensor: DomeSensor, camera: FisheyeCamera, frames, **options) -> Pipeline:
+    def from_noload(cls, sensor: DomeSensor, camera: Camera, frames, **options) -> Pipeline:
         """A pipeline whose baseline and noise come from a no-load stack ``(T, H, W)``, T >= 2.
 
         The baseline is the stack's mean; ``noise_sigma`` is

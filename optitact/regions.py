@@ -27,7 +27,7 @@ from functools import lru_cache
 import numpy as np
 
 from ._validate import check_type, positive
-from .camera import FisheyeCamera
+from .camera import Camera
 from .errors import InputError
 from .sensor import DomeSensor
 
@@ -93,14 +93,13 @@ def default_region_radius(sensor: DomeSensor) -> float:
     return min(reach, 0.5 * d_min)
 
 
-def _smallest_footprint(sensor: DomeSensor, camera: FisheyeCamera, radius: float) -> float:
+def _smallest_footprint(sensor: DomeSensor, camera: Camera, radius: float) -> float:
     """Smallest dome length (mm) one pixel spans, over points in the regions."""
     ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     ring = np.concatenate([[[0.0, 0.0]], radius * np.stack([np.cos(ang), np.sin(ang)], 1)])
     e = np.repeat(np.arange(sensor.n_elements), len(ring))
     pts = sensor.dome_point(e, np.tile(ring, (sensor.n_elements, 1)))
-    theta = np.arccos(np.clip(pts[:, 2] / sensor.outer_radius, -1, 1))
-    pts = pts[theta <= camera.max_polar_angle(sensor)]
+    pts = pts[camera.visible(pts, sensor)]
     px = camera.project(pts, sensor)
     h = 1e-3
     d0 = camera.unproject(px, sensor, outside="nan")
@@ -114,14 +113,16 @@ def _smallest_footprint(sensor: DomeSensor, camera: FisheyeCamera, radius: float
 
 
 @lru_cache(maxsize=8)
-def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | None = None,
+def split_regions(sensor: DomeSensor, camera: Camera, *, radius: float | None = None,
                   grid_mm: float | None = None) -> RegionGrids:
     """Step 4a (once per sensor and camera): the element regions as dome grids.
 
     Parameters
     ----------
     sensor : DomeSensor
-    camera : FisheyeCamera
+    camera : Camera
+        Any camera model; cells it does not see (:meth:`Camera.visible`) are
+        left out.
     radius : float, optional
         Region radius (mm, geodesic); default :func:`default_region_radius`;
         at most half a great circle (``pi * outer_radius``).
@@ -152,7 +153,7 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     the centre (the area element of geodesic normal coordinates).
     """
     check_type(sensor, DomeSensor, "sensor")
-    check_type(camera, FisheyeCamera, "camera")
+    check_type(camera, Camera, "camera")
     radius = default_region_radius(sensor) if radius is None else positive(radius, "radius")
     if radius > math.pi * sensor.outer_radius:
         raise InputError(f"radius must be at most half a great circle of the dome, "
@@ -161,9 +162,10 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
         grid_mm = _smallest_footprint(sensor, camera, radius) / OVERSAMPLE
         if grid_mm > radius:  # a pixel spans more than the region: the footprint scales as 1 / side
             side = min(camera.shape)
+            fov = f" (fov {camera.fov_deg:g} deg)" if hasattr(camera, "fov_deg") else ""
             raise InputError(
                 f"frame too small: a {camera.width}x{camera.height} frame cannot resolve the element "
-                f"regions; this sensor and camera (fov {camera.fov_deg:g} deg) need at least "
+                f"regions; this sensor and camera{fov} need at least "
                 f"{math.ceil(side * grid_mm / radius)} pixels on the shorter side")
     grid_mm = positive(grid_mm, "grid_mm")
     if grid_mm > radius:
@@ -179,7 +181,6 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     n_el = sensor.n_elements
     r_out = sensor.outer_radius
     normals = sensor.element_frames[:, 2, :]
-    theta_max = camera.max_polar_angle(sensor)
     mask = np.zeros((n_el,) + rho.shape, bool)
     within = np.flatnonzero(rho <= radius)
     pixels = np.full(mask.shape + (2,), -10.0)
@@ -188,8 +189,7 @@ def split_regions(sensor: DomeSensor, camera: FisheyeCamera, *, radius: float | 
     for e in range(n_el):
         pts = sensor.dome_point(np.full(len(within), e), offsets.reshape(-1, 2)[within])  # (m, 3)
         nearest = np.argmax(np.einsum("ik,fk->if", pts, normals), axis=-1)
-        theta = np.arccos(np.clip(pts[:, 2] / r_out, -1.0, 1.0))
-        keep = (nearest == e) & (theta <= theta_max)
+        keep = (nearest == e) & camera.visible(pts, sensor)
         mask[e].reshape(-1)[within[keep]] = True
         if keep.any():
             pixels[e].reshape(-1, 2)[within[keep]] = camera.project(pts[keep], sensor)

@@ -23,7 +23,7 @@ import warnings
 import numpy as np
 
 from ._validate import check_type
-from .camera import FisheyeCamera
+from .camera import Camera
 from .errors import InputError, KindError, OptitactWarning, ShapeError
 from .readings import Readings
 
@@ -43,7 +43,7 @@ NOISE_BINS = 16
 
 
 # ---------------------------------------------------------------------------- input checks
-def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[np.ndarray, bool]:
+def check_frames(frames, camera: Camera, name: str = "frames") -> tuple[np.ndarray, bool]:
     """Validate a frame ``(H, W)`` or stack ``(T, H, W)`` for a camera.
 
     Returns
@@ -67,7 +67,7 @@ def check_frames(frames, camera: FisheyeCamera, name: str = "frames") -> tuple[n
         For an empty stack, a NaN or infinite pixel, a float pixel beyond
         ``MAX_GREY`` in magnitude, or a negative value in an integer frame.
     """
-    check_type(camera, FisheyeCamera, "camera")
+    check_type(camera, Camera, "camera")
     try:
         arr = np.asarray(frames)
     except (ValueError, TypeError) as exc:  # ragged nested sequences

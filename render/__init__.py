@@ -81,6 +81,17 @@ def _check_variant(variant) -> None:
                          f"(<scalar|llvm|cuda>[_ad]_<rgb|mono|spectral>[_polarized][_double]), got {variant!r}")
 
 
+def _check_camera(camera) -> None:
+    """Rendering's Mitsuba sensor is the on-axis equidistant fisheye: refuse the other camera models."""
+    from optitact.camera import Camera
+
+    if isinstance(camera, Camera) and not isinstance(camera, FisheyeCamera):
+        raise InputError(f"rendering supports the on-axis equidistant fisheye (FisheyeCamera); got a "
+                         f"{type(camera).__name__} (model {camera.model!r})")
+    if not isinstance(camera, FisheyeCamera):
+        raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+
+
 def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None:
     if crop is None:
         return None
@@ -178,8 +189,7 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
     windows = None
     if target_error is not None:
         cam = FisheyeCamera() if camera is None else camera
-        if not isinstance(cam, FisheyeCamera):
-            raise TypeError(f"camera must be a FisheyeCamera, got {type(cam).__name__}")
+        _check_camera(cam)
         pixel, label = _loaded_region_pixels(sensor, cam, f)
         windows = np.full(cam.height * cam.width, -1, np.int64)
         windows[pixel] = label
@@ -221,8 +231,7 @@ def _render_contacts(sensor, contacts, *, camera, spp, seed, variant, settings, 
     if not isinstance(contacts, Contacts):
         raise TypeError(f"contacts must be a Contacts, got {type(contacts).__name__}")
     camera = FisheyeCamera() if camera is None else camera
-    if not isinstance(camera, FisheyeCamera):
-        raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+    _check_camera(camera)
     settings = RenderSettings() if settings is None else settings
     if not isinstance(settings, RenderSettings):
         raise TypeError(f"settings must be a RenderSettings, got {type(settings).__name__}")
