@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import finite, positive, real_array
-from optitact.camera import FisheyeCamera
+from optitact.camera import Camera
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
 from optitact.sensor import DomeSensor
@@ -355,7 +355,7 @@ class ForceField:
         return ff
 
     # ----------------------------------------------------------------- picture
-    def plot(self, frame: np.ndarray, camera: FisheyeCamera, *, ax=None,
+    def plot(self, frame: np.ndarray, camera: Camera, *, ax=None,
              scale_mm_per_n: float = 10.0, title: str | None = None):
         """Draw the force field over a camera frame.
 
@@ -365,7 +365,7 @@ class ForceField:
             Grey camera frame of ``camera.shape`` (any real dtype); shown in
             grey, stretched between its 0.5th and 99.9th percentiles for
             display only (the array is not changed).
-        camera : FisheyeCamera
+        camera : Camera
             The camera that took the frame (element centres and arrows are
             projected with it).
         ax : matplotlib.axes.Axes, optional
@@ -384,7 +384,7 @@ class ForceField:
         Raises
         ------
         TypeError
-            ``camera`` is not a :class:`FisheyeCamera` or ``frame`` is not a
+            ``camera`` is not a :class:`~optitact.camera.Camera` or ``frame`` is not a
             real numeric array.
         ShapeError
             ``frame`` is not ``camera.shape``.
@@ -419,8 +419,8 @@ class ForceField:
         Line2D = require("matplotlib.lines", purpose="plots").Line2D
         FancyArrowPatch = require("matplotlib.patches", purpose="plots").FancyArrowPatch
 
-        if not isinstance(camera, FisheyeCamera):
-            raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+        if not isinstance(camera, Camera):
+            raise TypeError(f"camera must be a Camera (e.g. a FisheyeCamera), got {type(camera).__name__}")
         img = real_array(frame, "frame")
         if img.shape != camera.shape:
             raise ShapeError(f"frame must have shape (H, W) = {camera.shape} of the camera, "
@@ -491,7 +491,7 @@ class ForceField:
             ax.set_title(title)
         return fig
 
-    def _visible_tips(self, camera: FisheyeCamera, idx: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    def _visible_tips(self, camera: Camera, idx: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Pixels of the arrow tips ``dome_point(idx, offset)``, cut where they leave the camera's view."""
         s = self.sensor
         theta_max = camera.max_polar_angle(s) - 1e-9
@@ -511,7 +511,7 @@ class ForceField:
             frac = np.where(out, lo, 1.0)
         return camera.project(s.dome_point(idx, offset * frac[:, None]), s)
 
-    def save_plot(self, path: str | os.PathLike, frame: np.ndarray, camera: FisheyeCamera,
+    def save_plot(self, path: str | os.PathLike, frame: np.ndarray, camera: Camera,
                   **kwargs) -> Path:
         """Save :meth:`plot` as a PNG (100 dpi) and return the path; ``kwargs`` go to :meth:`plot`."""
         from optitact.io import atomic_write_png_figure

@@ -427,7 +427,7 @@ def test_plot_errors(sensor, camera):
     bad[3, 4] = np.nan
     with pytest.raises(InputError, match="frame must be finite"):
         ff.plot(bad, camera)
-    with pytest.raises(TypeError, match="camera must be a FisheyeCamera"):
+    with pytest.raises(TypeError, match="camera must be a Camera"):
         ff.plot(np.zeros(camera.shape), "camera")
     with pytest.raises(InputError, match="scale_mm_per_n"):
         ff.plot(np.zeros(camera.shape), camera, scale_mm_per_n=0.0)

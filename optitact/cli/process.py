@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact.camera import FisheyeCamera
+from optitact.camera import Camera, FisheyeCamera, camera_from_dict
 from optitact.errors import InputError
 from optitact.live import POLICIES
 from optitact.sensor import DomeSensor
@@ -105,12 +105,12 @@ def add_parsers(sub) -> None:
     proc.set_defaults(run=run_process)
 
 
-def _setup(path: Path) -> tuple[DomeSensor, FisheyeCamera]:
+def _setup(path: Path) -> tuple[DomeSensor, Camera]:
     """The sensor and camera of a ``--setup`` JSON file."""
     setup = json.loads(path.read_text())
     if not isinstance(setup, dict) or "sensor" not in setup or "camera" not in setup:
         raise InputError(f"{path}: expected a JSON object with 'sensor' and 'camera'")
-    return DomeSensor.from_dict(setup["sensor"]), FisheyeCamera.from_dict(setup["camera"])
+    return DomeSensor.from_dict(setup["sensor"]), camera_from_dict(setup["camera"])
 
 
 def _load_baseline(path: Path) -> np.ndarray:
