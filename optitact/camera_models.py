@@ -28,7 +28,8 @@ from typing import ClassVar
 import numpy as np
 
 from ._validate import integer, real_number
-from .camera import CAMERA_MODELS, Camera, _bracketed_newton, check_frame_size, rotation_from_rvec
+from .camera import CAMERA_MODELS, Camera, check_frame_size, rotation_from_rvec
+from .dome_optics import _bracketed_newton
 from .errors import InputError
 
 __all__ = ["OpenCVFisheyeCamera", "PinholeCamera", "camera_from_opencv", "pose_from_position",
