@@ -54,8 +54,9 @@ def camera_from_opencv(K, D, width: int, height: int, *, model: str = "pinhole",
         ``"kannala_brandt"``, ``"plumb_bob"``, ``"radtan"``,
         ``"rational_polynomial"``.
     rvec, tvec : optional
-        The camera's pose in the dome (see :class:`PinholeCamera`); default on
-        the axis at z = -5 mm looking up it.
+        The camera's pose in the dome (see
+        :class:`optitact.camera_models.PinholeCamera`); default on the axis at
+        z = -5 mm looking up it.
 
     Returns
     -------
@@ -135,7 +136,7 @@ def read_opencv_calibration(path, *, model: str | None = None, width: int | None
     width, height : int, optional
         Image size, where the file has none (or to check it).
     rvec, tvec : optional
-        The camera's pose in the dome (see :class:`PinholeCamera`).
+        The camera's pose in the dome (see :class:`optitact.camera_models.PinholeCamera`).
 
     Returns
     -------
