@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import importlib
 
-from .camera import Camera, FisheyeCamera, camera_from_dict, dome_from_pixel, pixel_from_dome
+from .camera import Camera, FisheyeCamera, camera_from_dict
 from .camera_models import OpenCVFisheyeCamera, PinholeCamera, read_opencv_calibration
 from .ccd import CCD, IntensityScale
 from .contact import Contacts, cone_loads, contact_patches
+from .dome_optics import dome_from_pixel, pixel_from_dome
 from .errors import InputError, OptitactError, OptitactWarning, RenderError, ShapeError
 from .pipeline import Pipeline
 from .readings import Readings
