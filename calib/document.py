@@ -79,14 +79,8 @@ def read_document(path: str | os.PathLike):
 def from_document(cls, d):
     """Build a calibration of class ``cls`` from its JSON document ``d``, validating every field.
 
-    Raises
-    ------
-    InputError
-        Wrong schema or version, a missing or malformed field, parameters
-        outside what a fit gives (negative g coefficients, non-positive
-        scales or ranges, a coupled shear curve that divides by zero).
-    CalibrationMismatchError
-        The fingerprint does not match the sensor, camera and pipeline.
+    This is :meth:`Calibration.from_dict <optitact.calib.Calibration.from_dict>`;
+    its docstring lists what is refused, and with which error.
     """
     if not isinstance(d, dict):
         raise InputError(f"a calibration must be a JSON object, got {type(d).__name__}")

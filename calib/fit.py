@@ -394,8 +394,10 @@ class Calibration:
         FileNotFoundError
             Nothing at ``path``.
         InputError
-            ``path`` is a folder or not a regular file (a FIFO, a device),
-            oversized, not JSON, wrong schema or version, malformed fields.
+            Not a calibration file that :func:`~optitact.calib.document.read_document`
+            reads (a folder, not a regular file, oversized, not JSON), or a
+            document :meth:`from_dict` refuses (wrong schema or version,
+            malformed fields).
         CalibrationMismatchError
             ``sensor``/``camera`` given and not the calibration's.
         """
