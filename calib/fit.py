@@ -1,39 +1,12 @@
-"""Fitted calibration curves: normal force g(G) and shear f(u) per element, saved as JSON.
+"""The fitted calibration: curves g (normal) and f (shear) per element, applied to readings, saved as JSON.
 
-Models
-------
-``"ohka"`` -- the sensor's published form, per element ``i``::
-
-    Fz = g_i(G),   Fx = f_i(ux),   Fy = f_i(uy)
-
-``"coupled"`` -- the shear curve depends on the normal load, and the normal
-curve on where the light comes from::
-
-    Fz = g_i(G) + s (p_i . u / u_scale),   (Fx, Fy) = (ux, uy) * Fz / (a_i + b_i sqrt(Fz))
-
-with ``s = G / G_scale``. The second term is the brightness gradient across
-the element: the dome is lit from its rim, so a cone nearer the rim gives a
-brighter spot for the same load, and a tilted feeler (which moves load, and
-the centroid, towards one side) changes G at equal Fz -- by up to +-10 % on
-the 45-degree ring of the default sensor.
-
-Why the coupled form: the columnar feeler is rigid, so moment balance on the
-cones gives ``sum_k P_k r_k = h F_t`` (``h`` the lever arm), and a cone's
-contact area, hence its grey value, is proportional to its load (Sneddon,
-``A = 2 P tan(alpha) / E*``); the grey-value centroid of the tilted feeler
-is therefore ``sum P_k r_k / sum P_k = h F_t / F_z``. The patches also slide
-by ``F_t / sum k_k`` with Mindlin stiffness ``k = 8 G* a`` and ``a ~ sqrt(P)``,
-i.e. by about ``c F_t / sqrt(F_z)``. Together ``u = F_t (h / F_z + c /
-sqrt(F_z))``, which inverts to the form above with ``a ~ h`` and ``b ~ c``.
-A curve ``f(u)`` alone cannot represent this: the same shift means twice the
-shear at twice the normal load.
-
-Both models use ``g_i(G) = c0 + c1 s + c2 s^2 + c3 s^3`` (``s = G / G_scale``)
-with all ``c >= 0``, so g increases with G; ``f_i(u) = d1 t + d3 t^3``
-(``t = u / u_scale``), ``d >= 0``, odd and increasing; ``a, b >= 0``. Fits are
-bounded linear or non-linear least squares (SciPy) on scaled inputs.
-Outside the fitted range (G above the largest fitted G, |u| beyond the
-largest fitted shift) readings are clamped to the range and flagged.
+:class:`Calibration` holds one sensor's curves: :meth:`Calibration.fit` fits
+them to readings and known forces (element by element, see
+:mod:`optitact.calib.curves` for the models ``"ohka"`` and ``"coupled"`` and
+why), :meth:`Calibration.apply` turns readings into force fields, and
+:meth:`Calibration.save` / :meth:`Calibration.load` keep it as a JSON document
+(validated by :mod:`optitact.calib.document`). :func:`fit` fits one to a
+synthetic calibration set.
 
 Intensity scale
 ---------------
@@ -49,40 +22,29 @@ and refuses another exposure or gain.
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from optitact._validate import check_type
 from optitact.camera import FisheyeCamera
-from optitact._validate import check_keys, check_type
 from optitact.ccd import IntensityScale
 from optitact.errors import InputError, ShapeError
 from optitact.io import atomic_write_text, json_fingerprint
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
+from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
+from .curves import G_TERMS, MODELS, fit_element, g_design
+from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
+from .document import PIPELINE_KEYS as PIPELINE_KEYS
+from .document import SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, from_document, read_document
+
 __all__ = ["MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "fit"]
+# MIN_RELATIVE_SPREAD, MAX_FILE_BYTES and PIPELINE_KEYS stay importable from here (re-exported above).
 
-MODELS = ("ohka", "coupled")
-SCHEMA = "optitact.calibration"
-SCHEMA_VERSION = 1
-#: Largest calibration file read (bytes); a calibration of 41 elements is ~20 kB.
-MAX_FILE_BYTES = 5_000_000
-#: Smallest relative spread (``ptp / max |x|``) of G, u and Fz a fit accepts; a narrower range
-#: leaves the cubic g(G) and the shear curve ill-conditioned.
-MIN_RELATIVE_SPREAD = 1e-6
-#: Pipeline options a calibration file may hold.
-PIPELINE_KEYS = ("method", "filter", "filter_size", "noise_sigma", "k", "min_pixels", "saturation",
-                 "radius", "grid_mm")
-_G_TERMS = 4
-_F_TERMS = {"ohka": 2, "coupled": 2}
-
-
-class CalibrationMismatchError(InputError):
-    """A calibration was made for another sensor, camera or pipeline."""
 
 
 def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict,
@@ -118,18 +80,6 @@ def _resolved(sensor: DomeSensor, camera: FisheyeCamera, options: dict) -> dict:
     plain = _plain(options)
     pipe = Pipeline(sensor, camera, **plain)
     return plain | {"radius": pipe.grids.radius, "grid_mm": pipe.grids.grid_mm}
-
-
-def _g_design(s: np.ndarray) -> np.ndarray:
-    return np.stack([np.ones_like(s), s, s**2, s**3], axis=-1)
-
-
-def _f_ohka(t: np.ndarray, d: np.ndarray) -> np.ndarray:
-    return d[0] * t + d[1] * t**3
-
-
-def _shear_coupled(u: np.ndarray, fz: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return u * (fz / (p[0] + p[1] * np.sqrt(fz)))[..., None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,8 +187,6 @@ class Calibration:
         ShapeError
             ``forces`` does not match the readings.
         """
-        from scipy.optimize import least_squares, lsq_linear
-
         intensity = IntensityScale() if intensity is None else check_type(intensity, IntensityScale,
                                                                           "intensity")
         if model not in MODELS:
@@ -261,7 +209,7 @@ class Calibration:
         if n_el != sensor.n_elements:
             raise ShapeError(f"readings have {n_el} elements, the sensor {sensor.n_elements}")
         _check_readings(readings)
-        g_c = np.zeros((n_el, _G_TERMS))
+        g_c = np.zeros((n_el, G_TERMS))
         gu = np.zeros((n_el, 2))
         f_c = np.zeros((n_el, 2))
         g_scale, u_scale = np.ones(n_el), np.ones(n_el)
@@ -270,66 +218,11 @@ class Calibration:
                "n": np.zeros(n_el, int)}
         for e in range(n_el):
             ok = readings.contact[:, e] & ~readings.saturated[:, e]
-            G, u, fe = readings.G[ok, e], readings.u[ok, e], f[ok, e]
-            if len(G) < 8:
-                raise InputError(f"element {e}: {len(G)} usable samples (in contact, not "
-                                 f"saturated); a fit needs at least 8")
-            if np.ptp(G) <= 0 or np.ptp(u) <= 0:
-                raise InputError(f"element {e}: the readings do not vary (constant G or u); "
-                                 f"the loads must span a range")
-            n_distinct = len(np.unique(G))
-            if n_distinct < _G_TERMS:
-                raise InputError(f"element {e}: {n_distinct} distinct G values (duplicate points); "
-                                 f"the cubic g(G) needs at least {_G_TERMS}")
-            _check_spread(G, f"element {e}: G")
-            _check_spread(u, f"element {e}: u")
-            _check_spread(fe[:, 2], f"element {e}: the normal forces Fz")
-            if not np.any(fe[:, :2]):
-                raise InputError(f"element {e}: no sample has shear (Fx = Fy = 0 throughout); the "
-                                 f"shear curve needs loads with shear")
-            g_scale[e] = G.max()
-            s = G / g_scale[e]
-            g_max[e] = G.max()
-            radius = np.hypot(u[:, 0], u[:, 1])
-            u_max[e] = radius.max()
-            u_scale[e] = u_max[e]
-            design = _g_design(s)
-            if model == "coupled":  # + the brightness gradient across the element
-                design = np.concatenate([design, s[:, None] * u / u_scale[e]], axis=1)
-            lo = np.r_[np.zeros(_G_TERMS), np.full(design.shape[1] - _G_TERMS, -np.inf)]
-            sol = lsq_linear(design, fe[:, 2], bounds=(lo, np.inf), method="bvls")
-            # BVLS can return a bound-active coefficient a rounding error below 0 (-5.6e-17 seen).
-            g_c[e] = np.maximum(sol.x[:_G_TERMS], 0.0)
-            gu[e] = sol.x[_G_TERMS:] if model == "coupled" else 0.0
-            fz_hat = np.maximum(design @ np.r_[g_c[e], sol.x[_G_TERMS:]], 0.0)
-            if model == "ohka":
-                tt = (u / u_scale[e]).reshape(-1)
-                a = np.stack([tt, tt**3], axis=-1)
-                f_c[e] = np.maximum(lsq_linear(a, fe[:, :2].reshape(-1), bounds=(0.0, np.inf), method="bvls").x,
-                                    0.0)
-                shear = _f_ohka(u / u_scale[e], f_c[e])
-            else:
-                fzp = np.maximum(fz_hat, 1e-9)
-
-                def resid(p, u=u, fzp=fzp, target=fe[:, :2]):
-                    return (_shear_coupled(u, fzp, p) - target).reshape(-1)
-
-                # Start from the linear problem u Fz = F_t (a + b sqrt(Fz)) (exact on exact data),
-                # then minimise the shear residuals themselves.
-                ft = fe[:, :2].reshape(-1)
-                lin = np.stack([ft, ft * np.repeat(np.sqrt(fzp), 2)], axis=-1)
-                x0 = lsq_linear(lin, (u * fzp[:, None]).reshape(-1), bounds=([1e-6, 0.0], np.inf),
-                                method="bvls").x
-                h0 = max(sensor.lever_arm, 1e-3)
-                scale = [max(x0[0], 1e-6), max(x0[1], 1e-3 * x0[0], 1e-6)] if x0[0] > 1e-6 else [h0, h0]
-                sol2 = least_squares(resid, x0=x0, bounds=([1e-6, 0.0], [np.inf, np.inf]), x_scale=scale,
-                                     ftol=1e-12, xtol=1e-12, gtol=1e-12)
-                f_c[e] = sol2.x
-                shear = _shear_coupled(u, fzp, sol2.x)
-            res["fz"][e] = math.sqrt(np.mean((fz_hat - fe[:, 2]) ** 2))
-            res["fx"][e] = math.sqrt(np.mean((shear[:, 0] - fe[:, 0]) ** 2))
-            res["fy"][e] = math.sqrt(np.mean((shear[:, 1] - fe[:, 1]) ** 2))
-            res["n"][e] = len(G)
+            c = fit_element(readings.G[ok, e], readings.u[ok, e], f[ok, e], model=model,
+                            lever_arm=sensor.lever_arm, e=e)
+            g_c[e], gu[e], f_c[e] = c.g, c.gu, c.f
+            g_scale[e], u_scale[e], g_max[e], u_max[e] = c.g_scale, c.u_scale, c.g_max, c.u_max
+            res["fx"][e], res["fy"][e], res["fz"][e], res["n"][e] = c.rms_fx, c.rms_fy, c.rms_fz, c.n
         return cls(model, sensor, camera, _resolved(sensor, camera, pipeline_options or {}),
                    g_c, g_scale, f_c,
                    u_scale, g_max, u_max, gu, res, dict(provenance or {}), intensity)
@@ -414,7 +307,7 @@ class Calibration:
         clamped = readings.contact & ((readings.G > self.g_max) | over_u)
         s = G / self.g_scale
         t = u / self.u_scale[:, None]
-        fz = np.einsum("...ek,ek->...e", _g_design(s), self.g) + s * np.sum(t * self.gu, axis=-1)
+        fz = np.einsum("...ek,ek->...e", g_design(s), self.g) + s * np.sum(t * self.gu, axis=-1)
         fz = np.maximum(fz, 0.0)
         if self.model == "ohka":
             shear = self.f[:, 0:1] * t + self.f[:, 1:2] * t**3
@@ -489,90 +382,7 @@ class Calibration:
         CalibrationMismatchError
             The fingerprint does not match the sensor, camera and pipeline.
         """
-        if not isinstance(d, dict):
-            raise InputError(f"a calibration must be a JSON object, got {type(d).__name__}")
-        if d.get("schema") != SCHEMA:
-            raise InputError(f"not an optitact calibration (schema {d.get('schema')!r})")
-        version = d.get("schema_version")
-        if isinstance(version, bool) or not isinstance(version, int) or version != SCHEMA_VERSION:
-            raise InputError(f"calibration schema version {d.get('schema_version')!r} is not "
-                             f"supported (this optitact reads {SCHEMA_VERSION})")
-        for key in ("model", "sensor", "camera", "pipeline", "elements", "fingerprint"):
-            if key not in d:
-                raise InputError(f"calibration is missing {key!r}")
-        model = d["model"]
-        if not isinstance(model, str) or model not in MODELS:
-            raise InputError(f"calibration model must be one of {MODELS}, got {model!r}")
-        if not isinstance(d["fingerprint"], str):
-            raise InputError(f"calibration 'fingerprint' must be a string, got {d['fingerprint']!r}")
-        try:
-            sensor = DomeSensor.from_dict(d["sensor"])
-        except (TypeError, ValueError, ArithmeticError) as exc:
-            raise InputError(f"calibration 'sensor' is not a valid sensor: {exc}") from None
-        try:
-            camera = FisheyeCamera.from_dict(d["camera"])
-        except (TypeError, ValueError, ArithmeticError) as exc:
-            raise InputError(f"calibration 'camera' is not a valid camera: {exc}") from None
-        if not isinstance(d["pipeline"], dict):
-            raise InputError("calibration 'pipeline' must be an object of Pipeline options")
-        check_keys(d["pipeline"], PIPELINE_KEYS, "calibration 'pipeline'", noun="option")
-        for key in ("residuals_n", "provenance"):
-            if not isinstance(d.get(key, {}), dict):
-                raise InputError(f"calibration {key!r} must be an object, got "
-                                 f"{type(d[key]).__name__}")
-        residuals = {key: _numbers(value, f"calibration residuals_n[{key!r}]")
-                     for key, value in d.get("residuals_n", {}).items()}
-        try:
-            intensity = IntensityScale.from_dict(d.get("intensity", {}))
-        except (TypeError, ValueError) as exc:
-            raise InputError(f"calibration 'intensity' is not a valid intensity scale: {exc}") from None
-        n = sensor.n_elements
-        el = d["elements"]
-        if not isinstance(el, dict):
-            raise InputError("calibration 'elements' must be an object")
-
-        def arr(name, shape):
-            if name not in el:
-                raise InputError(f"calibration elements are missing {name!r}")
-            a = _numbers(el[name], f"calibration elements[{name!r}]")
-            if a.shape != shape:
-                raise InputError(f"calibration elements[{name!r}] must have shape {shape}, "
-                                 f"got {a.shape}")
-            a.flags.writeable = False
-            return a
-
-        cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, _G_TERMS)),
-                  arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
-                  arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
-                  residuals, dict(d.get("provenance", {})), intensity)
-        if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
-            raise InputError("calibration scales must be > 0")
-        if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
-            raise InputError("calibration ranges g_max and u_max must be > 0")
-        if np.any(cal.g < 0):
-            raise InputError("calibration g coefficients must be >= 0 (g increases with G)")
-        if model == "coupled" and (np.any(cal.f[:, 0] <= 0) or np.any(cal.f[:, 1] < 0)):
-            raise InputError("coupled calibration shear parameters must have a > 0 and b >= 0")
-        if model == "ohka" and np.any(cal.f < 0):
-            raise InputError("ohka calibration shear coefficients must be >= 0")
-        with np.errstate(all="ignore"):  # the curves must stay finite over the fitted range
-            s_top, t_top = cal.g_max / cal.g_scale, cal.u_max / cal.u_scale
-            fz_top = _g_design(s_top) @ np.ones(_G_TERMS) * np.abs(cal.g).max(axis=1) \
-                + s_top * t_top * np.abs(cal.gu).sum(axis=1)
-            shear_top = (cal.u_max * fz_top / cal.f[:, 0] if model == "coupled"
-                         else cal.f[:, 0] * t_top + cal.f[:, 1] * t_top**3)
-        if not (np.isfinite(fz_top).all() and np.isfinite(shear_top).all()):
-            raise InputError("calibration curves overflow float64 within their fitted range (scales, "
-                             "ranges or coefficients out of proportion)")
-        try:
-            cal.pipeline()  # the pipeline options must be valid
-        except (TypeError, ValueError, ArithmeticError) as exc:
-            raise InputError(f"calibration 'pipeline' options are not valid: {exc}") from None
-        if cal.fingerprint != d["fingerprint"]:
-            raise CalibrationMismatchError(
-                f"calibration fingerprint {d['fingerprint']!r} does not match its own sensor, "
-                f"camera and pipeline ({cal.fingerprint}); the file was edited or is corrupt")
-        return cal
+        return from_document(cls, d)
 
     @classmethod
     def load(cls, path: str | os.PathLike, *, sensor: DomeSensor | None = None,
@@ -584,74 +394,17 @@ class Calibration:
         FileNotFoundError
             Nothing at ``path``.
         InputError
-            ``path`` is a folder or not a regular file (a FIFO, a device),
-            oversized, not JSON, wrong schema or version, malformed fields.
+            Not a calibration file that :func:`~optitact.calib.document.read_document`
+            reads (a folder, not a regular file, oversized, not JSON), or a
+            document :meth:`from_dict` refuses (wrong schema or version,
+            malformed fields).
         CalibrationMismatchError
             ``sensor``/``camera`` given and not the calibration's.
         """
-        path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(f"calibration file not found: {path}")
-        if path.is_dir():
-            raise InputError(f"{path} is a folder, expected a calibration JSON file")
-        if not path.is_file():
-            raise InputError(f"{path} is not a regular file (a FIFO, socket or device?), expected a "
-                             f"calibration JSON file")
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise InputError(f"{path}: {size} bytes is too large for a calibration "
-                             f"(at most {MAX_FILE_BYTES})")
-        with path.open("rb") as fh:
-            data = fh.read(MAX_FILE_BYTES + 1)  # the file may have grown since stat()
-        if len(data) > MAX_FILE_BYTES:
-            raise InputError(f"{path} is too large for a calibration (more than {MAX_FILE_BYTES} bytes)")
-        try:
-            d = json.loads(data.decode("utf-8"), parse_constant=_refuse_constant)
-        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-            # JSONDecodeError and numbers too long to convert are ValueErrors; absurd nesting
-            # exhausts the parser's recursion
-            raise InputError(f"{path} is not a JSON calibration ({type(exc).__name__}: "
-                             f"{str(exc)[:200]})") from None
+        d = read_document(path)
         cal = cls.from_dict(d)
         cal.check(sensor, camera)
         return cal
-
-
-def _numbers(value, what: str) -> np.ndarray:
-    """A nested list of JSON numbers as a float64 array; InputError naming ``what`` otherwise.
-
-    Strings ("0.99"), booleans, nulls and objects are refused (NumPy would
-    convert the first two), and so are values that are not finite in float64
-    (1e309 parses as infinity; integers beyond float64 overflow).
-    """
-    stack = [value]
-    while stack:
-        item = stack.pop()
-        if isinstance(item, list):
-            stack.extend(item)
-        elif isinstance(item, bool) or not isinstance(item, (int, float)):
-            raise InputError(f"{what} must hold numbers, got {item!r} ({type(item).__name__})")
-    try:
-        a = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError, ArithmeticError):  # ragged lists; ints beyond float64 overflow
-        raise InputError(f"{what} must be a regular array of numbers within float64") from None
-    if not np.isfinite(a).all():
-        raise InputError(f"{what} must be finite, got {a[~np.isfinite(a)].flat[0]} (JSON numbers beyond "
-                         f"float64, such as 1e309, read as infinity)")
-    return a
-
-
-def _refuse_constant(name: str):
-    raise ValueError(f"{name} is not valid JSON (calibration numbers must be finite)")
-
-
-def _check_spread(x: np.ndarray, what: str) -> None:
-    """InputError unless ``x`` spans a range wider than ``MIN_RELATIVE_SPREAD`` of its magnitude."""
-    spread, scale = float(np.ptp(x)), float(np.max(np.abs(x)))
-    if not spread > MIN_RELATIVE_SPREAD * scale:
-        raise InputError(f"{what} spans {spread:.3g} around a magnitude of {scale:.3g} (relative "
-                         f"{spread / scale if scale else 0.0:.3g}); a fit needs a relative spread "
-                         f"above {MIN_RELATIVE_SPREAD:g} (an ill-conditioned range)")
 
 
 def _check_readings(readings: Readings) -> None:

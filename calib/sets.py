@@ -14,21 +14,17 @@ rebuilt by the same command, an empty folder is a new store, and a folder
 holding anything else is never deleted. Zarr's ``*.partial`` temporary files
 left by a kill are removed on the next run. While :func:`generate` writes it
 holds an OS lock on the store (``.optitact-lock`` inside it, naming the
-holder): a second writer is refused at once.
+holder): a second writer is refused at once. That housekeeping of the store
+(its lock, a half-made store, stray partial files) is in
+:mod:`optitact.calib._store`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import json
 import math
 import os
-import re
-import shutil
-import socket
 import sys
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -43,11 +39,15 @@ from optitact.io import json_fingerprint
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
+from ._store import LOCK_NAME, StoreLockedError, open_store, remove_partials, store_lock
+
 __all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "design_forces", "frame_seeds", "generate",
            "RENDER_MODES", "StoreLockedError", "LOCK_NAME"]
 
 #: How :func:`generate` renders its frames (see its ``render_mode``).
 RENDER_MODES = ("two_stage", "pixels", "full")
+#: :func:`store_lock` under the name it had here (a process that holds a store's lock imports it).
+_store_lock = store_lock
 
 SCHEMA = "optitact.calibration-set"
 SCHEMA_VERSION = 1
@@ -313,136 +313,6 @@ def _distributed(scheduler, maker: FrameMaker, todo, forces, seeds, token: str):
             yield futures[fut], fut.result()
 
 
-#: The lock file inside a store (:func:`generate` holds an OS lock on it while it writes).
-LOCK_NAME = ".optitact-lock"
-#: The names a store's own files and folders have (a folder holding anything else is not deleted).
-_ARRAYS = ("forces", "seeds", "G", "u", "contact", "saturated", "frames", "baseline", "baseline_radiance",
-           "baseline_done", "done")
-#: Zarr's temporary files (``<name>.<uuid4 hex>.partial``, renamed over ``<name>`` when whole).
-_PARTIAL = re.compile(r"^(zarr|\d+)\.[0-9a-f]{32}\.partial$")
-_CHUNK = re.compile(r"^\d+$")
-
-
-class StoreLockedError(InputError):
-    """Another process is writing the calibration set (it holds the store's lock)."""
-
-
-@contextlib.contextmanager
-def _store_lock(path: Path):
-    """Hold an exclusive OS lock (``flock``) on ``path/LOCK_NAME`` while the block runs.
-
-    The lock file records who holds it (pid, host, command, since when); the
-    lock is released when the block ends or the process dies, whatever the
-    cause. Raises :class:`StoreLockedError` at once (no waiting) if another
-    process holds it.
-    """
-    try:
-        import fcntl
-    except ImportError:  # not a POSIX system: no OS lock to take
-        yield
-        return
-    path.mkdir(parents=True, exist_ok=True)
-    lock = path / LOCK_NAME
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise StoreLockedError(f"{path} is being written by another process ({_holder(lock)}); "
-                                   f"wait for it to finish, or stop it and run this command again") from None
-        holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": " ".join(sys.argv),
-                  "since": time.strftime("%Y-%m-%d %H:%M:%S %z")}
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, (json.dumps(holder) + "\n").encode(), 0)
-        yield
-    finally:
-        os.close(fd)  # releases the lock
-
-
-def _holder(lock: Path) -> str:
-    """Who holds ``lock``, as its holder wrote it."""
-    try:
-        h = json.loads(lock.read_text(encoding="utf-8"))
-        return (f"pid {h['pid']} on {h['host']}, running {h['command']!r} since {h['since']}; "
-                f"lock file {lock}")
-    except (OSError, ValueError, KeyError, TypeError):
-        return f"no details written yet; lock file {lock}"
-
-
-def _foreign(path: Path) -> list[Path]:
-    """Entries under ``path`` whose names a calibration store never uses (a user's files)."""
-    out = []
-    for entry in path.iterdir():
-        name = entry.name
-        if name in (LOCK_NAME, "zarr.json") or _PARTIAL.match(name):
-            if entry.is_dir():
-                out.append(entry)
-            continue
-        if name not in _ARRAYS or not entry.is_dir():
-            out.append(entry)
-            continue
-        for root, dirs, files in os.walk(entry):
-            rel = Path(root).relative_to(entry)
-            for d in dirs:
-                if not (rel == Path(".") and d == "c" or rel.parts[:1] == ("c",) and _CHUNK.match(d)):
-                    out.append(Path(root) / d)
-            for f in files:
-                if not (f == "zarr.json" and rel == Path(".") or _PARTIAL.match(f)
-                        or rel.parts[:1] == ("c",) and _CHUNK.match(f)):
-                    out.append(Path(root) / f)
-            dirs[:] = [d for d in dirs if Path(root) / d not in out]
-    return out
-
-
-def _open_store(path: Path, zarr):
-    """The store's group (read-write) if ``path`` holds a whole calibration set; None if it must be created.
-
-    A folder that is empty, or holds only a store's own files but no
-    finished store (killed while it was being created or removed: its
-    attributes, written last, are missing or unreadable), is emptied and
-    None returned. A folder with anything else in it is never touched: an
-    InputError names what does not belong.
-    """
-    if not path.exists():
-        return None
-    group = None
-    try:
-        group = zarr.open_group(str(path), mode="r+")
-        whole = dict(group.attrs).get("schema") == SCHEMA
-    except Exception:  # zarr raises several kinds for a missing or unreadable zarr.json
-        whole = False
-    if whole:
-        return group
-    foreign = _foreign(path)
-    if foreign:
-        shown = ", ".join(str(p.relative_to(path)) for p in foreign[:3])
-        raise InputError(f"{path} exists and is not a calibration set (it holds {shown}"
-                         f"{' ...' if len(foreign) > 3 else ''}, which a calibration set never has); "
-                         f"nothing was changed: use another --out")
-    if group is not None and dict(group.attrs).get("schema"):
-        raise InputError(f"{path} is a Zarr store of another kind (schema "
-                         f"{dict(group.attrs).get('schema')!r}); use another --out")
-    if any(p.is_file() and not _PARTIAL.match(p.name) for p in (path / "done" / "c").rglob("*")):
-        raise InputError(f"{path} has finished frames but no readable settings; it was not changed: "
-                         f"move it away or use another --out")
-    for entry in path.iterdir():  # a half-made store: start again (the lock file stays)
-        if entry.name == LOCK_NAME:
-            continue
-        if entry.is_dir():
-            shutil.rmtree(entry)
-        else:
-            entry.unlink()
-    return None
-
-
-def _remove_partials(path: Path) -> None:
-    """Remove Zarr's temporary ``*.partial`` files left by a process killed mid-write (we hold the lock)."""
-    for p in path.rglob("*.partial"):
-        if _PARTIAL.match(p.name) and p.is_file():
-            p.unlink()
-
-
-
 def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor | None = None,
              camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 64,
              seed: int = 0, design: Design | None = None, keep_frames: bool = False,
@@ -556,7 +426,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"{path} exists and is a file, not a calibration set (a Zarr store is a folder)")
-    with _store_lock(path):
+    with store_lock(path):
         return _fill(path, zarr=zarr, attrs=attrs, check=check, frames=frames, sensor=sensor, camera=camera,
                      ccd=ccd, design=design, seed=seed, spp=spp, keep_frames=keep_frames,
                      baseline_frames=baseline_frames, variant=variant, options=options,
@@ -571,7 +441,7 @@ def _fill(path: Path, *, zarr, attrs, check, frames, sensor, camera, ccd, design
     from optitact.render import render
 
     n_el, (h, w) = sensor.n_elements, camera.shape
-    group = _open_store(path, zarr)
+    group = open_store(path, zarr, schema=SCHEMA)
     if group is not None:
         old = dict(group.attrs)
         if isinstance(old.get("pipeline"), dict) and "radius" not in old["pipeline"]:
@@ -584,7 +454,7 @@ def _fill(path: Path, *, zarr, attrs, check, frames, sensor, camera, ccd, design
             raise InputError(f"{path} holds a calibration set made with other settings "
                              f"({', '.join(mismatch)} differ); use another --out or the same "
                              f"settings to resume")
-        _remove_partials(path)
+        remove_partials(path)
     else:
         group = zarr.open_group(str(path), mode="a")
         forces = design_forces(frames, n_el, design, seed)

@@ -176,18 +176,19 @@ def run_fit(args) -> int:
 
 def _run_fit_presses(args) -> int:
     """``optitact calibrate fit --frames ... --forces ...``."""
-    from optitact.calib.presses import _fit_measured, _start, measure_presses
+    from optitact.calib.gauge import measure_presses
+    from optitact.calib.press_fit import fit_measured, starting_calibration
 
     if args.frames is None or args.forces is None:
         raise InputError("fitting presses needs both --frames and --forces")
     if args.set is not None or args.partial:
         raise InputError("give a calibration set or --frames/--forces, not both")
-    start = _start(args.start)
+    start = starting_calibration(args.start)
     pipe = _presses_pipeline(args.setup, start, args.frames)
     base, n_base = _baseline(args)
     p = measure_presses(args.frames, args.forces, pipeline=pipe, baseline=base, baseline_frames=n_base,
                         progress=True)
-    cal = _fit_measured(p, pipe, model=args.model, start=start, forces=args.forces)
+    cal = fit_measured(p, pipe, model=args.model, start=start, forces=args.forces)
     cal.save(args.out)
     r = cal.residuals
     n_press = np.asarray(cal.provenance["presses_per_element"])
@@ -208,11 +209,11 @@ def _run_fit_presses(args) -> int:
 
 def _presses_pipeline(setup, start, frames):
     """The pipeline that reads the presses: the setup's sensor and camera, the start's options."""
-    from optitact.calib.presses import _default_pipeline
+    from optitact.calib.press_fit import default_pipeline
     from optitact.pipeline import Pipeline
 
     if setup is None:
-        return start.pipeline() if start is not None else _default_pipeline(frames)
+        return start.pipeline() if start is not None else default_pipeline(frames)
     from .process import _setup
 
     sensor, camera = _setup(setup)
@@ -229,9 +230,11 @@ def run_test(args) -> int:
     """``optitact calibrate test``: the held-out report on stderr (or JSON on stdout)."""
     import json
 
-    from optitact.calib.presses import _start, measure_presses, press_report
+    from optitact.calib.gauge import measure_presses
+    from optitact.calib.held_out import press_report
+    from optitact.calib.press_fit import starting_calibration
 
-    cal = _start(args.calibration)
+    cal = starting_calibration(args.calibration)
     base, n_base = _baseline(args)
     p = measure_presses(args.frames, args.forces, pipeline=cal.pipeline(), baseline=base,
                         baseline_frames=n_base, progress=True)

@@ -1,0 +1,196 @@
+"""Calibration documents: the JSON a :class:`~optitact.calib.Calibration` is saved as, read and validated.
+
+:func:`read_document` reads a calibration file (bounded in size, never
+executing anything, refusing NaN and infinity), :func:`from_document` checks
+every field of the document and builds the calibration, refusing parameters
+a fit never gives and a fingerprint that does not match the sensor, camera
+and pipeline it names.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from optitact._validate import check_keys
+from optitact.camera import FisheyeCamera
+from optitact.ccd import IntensityScale
+from optitact.errors import InputError
+from optitact.sensor import DomeSensor
+
+from .curves import G_TERMS, MODELS, g_design
+
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "MAX_FILE_BYTES", "PIPELINE_KEYS", "CalibrationMismatchError",
+           "from_document", "numbers", "read_document"]
+
+SCHEMA = "optitact.calibration"
+SCHEMA_VERSION = 1
+#: Largest calibration file read (bytes); a calibration of 41 elements is ~20 kB.
+MAX_FILE_BYTES = 5_000_000
+#: Pipeline options a calibration file may hold.
+PIPELINE_KEYS = ("method", "filter", "filter_size", "noise_sigma", "k", "min_pixels", "saturation",
+                 "radius", "grid_mm")
+
+
+class CalibrationMismatchError(InputError):
+    """A calibration was made for another sensor, camera or pipeline."""
+
+
+def read_document(path: str | os.PathLike):
+    """The JSON value in a calibration file at ``path`` (not yet validated: see :func:`from_document`).
+
+    Raises
+    ------
+    FileNotFoundError
+        Nothing at ``path``.
+    InputError
+        ``path`` is a folder or not a regular file (a FIFO, a device),
+        oversized (over ``MAX_FILE_BYTES``), or not JSON of finite numbers.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"calibration file not found: {path}")
+    if path.is_dir():
+        raise InputError(f"{path} is a folder, expected a calibration JSON file")
+    if not path.is_file():
+        raise InputError(f"{path} is not a regular file (a FIFO, socket or device?), expected a "
+                         f"calibration JSON file")
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise InputError(f"{path}: {size} bytes is too large for a calibration "
+                         f"(at most {MAX_FILE_BYTES})")
+    with path.open("rb") as fh:
+        data = fh.read(MAX_FILE_BYTES + 1)  # the file may have grown since stat()
+    if len(data) > MAX_FILE_BYTES:
+        raise InputError(f"{path} is too large for a calibration (more than {MAX_FILE_BYTES} bytes)")
+    try:
+        d = json.loads(data.decode("utf-8"), parse_constant=_refuse_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        # JSONDecodeError and numbers too long to convert are ValueErrors; absurd nesting
+        # exhausts the parser's recursion
+        raise InputError(f"{path} is not a JSON calibration ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
+    return d
+
+
+def from_document(cls, d):
+    """Build a calibration of class ``cls`` from its JSON document ``d``, validating every field.
+
+    This is :meth:`Calibration.from_dict <optitact.calib.Calibration.from_dict>`;
+    its docstring lists what is refused, and with which error.
+    """
+    if not isinstance(d, dict):
+        raise InputError(f"a calibration must be a JSON object, got {type(d).__name__}")
+    if d.get("schema") != SCHEMA:
+        raise InputError(f"not an optitact calibration (schema {d.get('schema')!r})")
+    version = d.get("schema_version")
+    if isinstance(version, bool) or not isinstance(version, int) or version != SCHEMA_VERSION:
+        raise InputError(f"calibration schema version {d.get('schema_version')!r} is not "
+                         f"supported (this optitact reads {SCHEMA_VERSION})")
+    for key in ("model", "sensor", "camera", "pipeline", "elements", "fingerprint"):
+        if key not in d:
+            raise InputError(f"calibration is missing {key!r}")
+    model = d["model"]
+    if not isinstance(model, str) or model not in MODELS:
+        raise InputError(f"calibration model must be one of {MODELS}, got {model!r}")
+    if not isinstance(d["fingerprint"], str):
+        raise InputError(f"calibration 'fingerprint' must be a string, got {d['fingerprint']!r}")
+    try:
+        sensor = DomeSensor.from_dict(d["sensor"])
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        raise InputError(f"calibration 'sensor' is not a valid sensor: {exc}") from None
+    try:
+        camera = FisheyeCamera.from_dict(d["camera"])
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        raise InputError(f"calibration 'camera' is not a valid camera: {exc}") from None
+    if not isinstance(d["pipeline"], dict):
+        raise InputError("calibration 'pipeline' must be an object of Pipeline options")
+    check_keys(d["pipeline"], PIPELINE_KEYS, "calibration 'pipeline'", noun="option")
+    for key in ("residuals_n", "provenance"):
+        if not isinstance(d.get(key, {}), dict):
+            raise InputError(f"calibration {key!r} must be an object, got "
+                             f"{type(d[key]).__name__}")
+    residuals = {key: numbers(value, f"calibration residuals_n[{key!r}]")
+                 for key, value in d.get("residuals_n", {}).items()}
+    try:
+        intensity = IntensityScale.from_dict(d.get("intensity", {}))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"calibration 'intensity' is not a valid intensity scale: {exc}") from None
+    n = sensor.n_elements
+    el = d["elements"]
+    if not isinstance(el, dict):
+        raise InputError("calibration 'elements' must be an object")
+
+    def arr(name, shape):
+        if name not in el:
+            raise InputError(f"calibration elements are missing {name!r}")
+        a = numbers(el[name], f"calibration elements[{name!r}]")
+        if a.shape != shape:
+            raise InputError(f"calibration elements[{name!r}] must have shape {shape}, "
+                             f"got {a.shape}")
+        a.flags.writeable = False
+        return a
+
+    cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, G_TERMS)),
+              arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
+              arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
+              residuals, dict(d.get("provenance", {})), intensity)
+    if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
+        raise InputError("calibration scales must be > 0")
+    if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
+        raise InputError("calibration ranges g_max and u_max must be > 0")
+    if np.any(cal.g < 0):
+        raise InputError("calibration g coefficients must be >= 0 (g increases with G)")
+    if model == "coupled" and (np.any(cal.f[:, 0] <= 0) or np.any(cal.f[:, 1] < 0)):
+        raise InputError("coupled calibration shear parameters must have a > 0 and b >= 0")
+    if model == "ohka" and np.any(cal.f < 0):
+        raise InputError("ohka calibration shear coefficients must be >= 0")
+    with np.errstate(all="ignore"):  # the curves must stay finite over the fitted range
+        s_top, t_top = cal.g_max / cal.g_scale, cal.u_max / cal.u_scale
+        fz_top = g_design(s_top) @ np.ones(G_TERMS) * np.abs(cal.g).max(axis=1) \
+            + s_top * t_top * np.abs(cal.gu).sum(axis=1)
+        shear_top = (cal.u_max * fz_top / cal.f[:, 0] if model == "coupled"
+                     else cal.f[:, 0] * t_top + cal.f[:, 1] * t_top**3)
+    if not (np.isfinite(fz_top).all() and np.isfinite(shear_top).all()):
+        raise InputError("calibration curves overflow float64 within their fitted range (scales, "
+                         "ranges or coefficients out of proportion)")
+    try:
+        cal.pipeline()  # the pipeline options must be valid
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        raise InputError(f"calibration 'pipeline' options are not valid: {exc}") from None
+    if cal.fingerprint != d["fingerprint"]:
+        raise CalibrationMismatchError(
+            f"calibration fingerprint {d['fingerprint']!r} does not match its own sensor, "
+            f"camera and pipeline ({cal.fingerprint}); the file was edited or is corrupt")
+    return cal
+
+
+def numbers(value, what: str) -> np.ndarray:
+    """A nested list of JSON numbers as a float64 array; InputError naming ``what`` otherwise.
+
+    Strings ("0.99"), booleans, nulls and objects are refused (NumPy would
+    convert the first two), and so are values that are not finite in float64
+    (1e309 parses as infinity; integers beyond float64 overflow).
+    """
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise InputError(f"{what} must hold numbers, got {item!r} ({type(item).__name__})")
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, ArithmeticError):  # ragged lists; ints beyond float64 overflow
+        raise InputError(f"{what} must be a regular array of numbers within float64") from None
+    if not np.isfinite(a).all():
+        raise InputError(f"{what} must be finite, got {a[~np.isfinite(a)].flat[0]} (JSON numbers beyond "
+                         f"float64, such as 1e309, read as infinity)")
+    return a
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not valid JSON (calibration numbers must be finite)")
