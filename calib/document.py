@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import check_keys
-from optitact.camera import FisheyeCamera
+from optitact.camera import camera_from_dict
 from optitact.ccd import IntensityScale
 from optitact.errors import InputError
 from optitact.sensor import DomeSensor
@@ -103,7 +103,7 @@ def from_document(cls, d):
     except (TypeError, ValueError, ArithmeticError) as exc:
         raise InputError(f"calibration 'sensor' is not a valid sensor: {exc}") from None
     try:
-        camera = FisheyeCamera.from_dict(d["camera"])
+        camera = camera_from_dict(d["camera"])
     except (TypeError, ValueError, ArithmeticError) as exc:
         raise InputError(f"calibration 'camera' is not a valid camera: {exc}") from None
     if not isinstance(d["pipeline"], dict):

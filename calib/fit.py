@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import check_type
-from optitact.camera import FisheyeCamera
+from optitact.camera import Camera
 from optitact.ccd import IntensityScale
 from optitact.errors import InputError, ShapeError
 from optitact.io import atomic_write_text, json_fingerprint
@@ -47,7 +47,7 @@ __all__ = ["MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "
 
 
 
-def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dict,
+def fingerprint(sensor: DomeSensor, camera: Camera, pipeline_options: dict,
                 intensity: IntensityScale | None = None) -> str:
     """Short hash of the sensor, camera, pipeline options and intensity scale a calibration belongs to.
 
@@ -56,7 +56,7 @@ def fingerprint(sensor: DomeSensor, camera: FisheyeCamera, pipeline_options: dic
     fingerprint.
     """
     check_type(sensor, DomeSensor, "sensor")
-    check_type(camera, FisheyeCamera, "camera")
+    check_type(camera, Camera, "camera")
     doc = {"sensor": sensor.to_dict(), "camera": camera.to_dict(), "pipeline": _plain(pipeline_options)}
     if intensity is not None and check_type(intensity, IntensityScale, "intensity") != IntensityScale():
         doc["intensity"] = intensity.to_dict()
@@ -68,7 +68,7 @@ def _plain(options: dict) -> dict:
     return {k: v for k, v in sorted(options.items()) if v is not None and k != "baseline"}
 
 
-def _resolved(sensor: DomeSensor, camera: FisheyeCamera, options: dict) -> dict:
+def _resolved(sensor: DomeSensor, camera: Camera, options: dict) -> dict:
     """Pipeline options with the region geometry made explicit.
 
     The default region radius and dewarp cell size are derived from the
@@ -89,7 +89,7 @@ class Calibration:
     Attributes
     ----------
     model : {"ohka", "coupled"}
-    sensor, camera : DomeSensor, FisheyeCamera
+    sensor, camera : DomeSensor, Camera (any model, e.g. FisheyeCamera)
     pipeline_options : dict
         Options of :class:`optitact.Pipeline` the readings were made with.
     g : (E, 4) ndarray
@@ -118,7 +118,7 @@ class Calibration:
 
     model: str
     sensor: DomeSensor
-    camera: FisheyeCamera
+    camera: Camera
     pipeline_options: dict
     g: np.ndarray
     g_scale: np.ndarray
@@ -151,7 +151,7 @@ class Calibration:
 
     # ------------------------------------------------------------------ fitting
     @classmethod
-    def fit(cls, readings: Readings, forces, *, sensor: DomeSensor, camera: FisheyeCamera,
+    def fit(cls, readings: Readings, forces, *, sensor: DomeSensor, camera: Camera,
             pipeline_options: dict | None = None, model: str = "coupled",
             provenance: dict | None = None, intensity: IntensityScale | None = None) -> Calibration:
         """Fit the curves to readings and the true (measured) forces that made them.
@@ -162,7 +162,7 @@ class Calibration:
             Stack readings ``(T, E)`` (from :meth:`optitact.Pipeline.process`).
         forces : (T, E, 3) array_like
             Element-local forces (N) applied in each frame.
-        sensor, camera : DomeSensor, FisheyeCamera
+        sensor, camera : DomeSensor, Camera (any model, e.g. FisheyeCamera)
             What the frames came from.
         pipeline_options : dict, optional
             The pipeline options used for the readings (stored).
@@ -269,7 +269,7 @@ class Calibration:
                         readings_bits=scale.bits,
                         **{k: v for k, v in self.pipeline_options.items() if k != "method"})
 
-    def check(self, sensor: DomeSensor | None = None, camera: FisheyeCamera | None = None) -> None:
+    def check(self, sensor: DomeSensor | None = None, camera: Camera | None = None) -> None:
         """Raise CalibrationMismatchError unless ``sensor``/``camera`` are the calibration's."""
         if sensor is not None and sensor != self.sensor:
             raise CalibrationMismatchError(
@@ -386,7 +386,7 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | os.PathLike, *, sensor: DomeSensor | None = None,
-             camera: FisheyeCamera | None = None) -> Calibration:
+             camera: Camera | None = None) -> Calibration:
         """Read a calibration JSON file (never executes anything from it).
 
         Raises

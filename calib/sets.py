@@ -32,7 +32,7 @@ import numpy as np
 
 from optitact._optional import require
 from optitact._validate import integer, positive, seed_value
-from optitact.camera import FisheyeCamera
+from optitact.camera import FisheyeCamera, camera_from_dict
 from optitact.ccd import CCD
 from optitact.errors import InputError
 from optitact.io import json_fingerprint
@@ -196,7 +196,7 @@ class CalibrationSet:
             raise InputError(f"{self.path} is an incomplete calibration set (missing "
                              f"{', '.join(missing)}); run its generate command again")
         self.sensor = DomeSensor.from_dict(self.attrs["sensor"])
-        self.camera = FisheyeCamera.from_dict(self.attrs["camera"])
+        self.camera = camera_from_dict(self.attrs["camera"])
         self.ccd = CCD.from_dict(self.attrs["ccd"])
 
     def __len__(self) -> int:

@@ -422,3 +422,21 @@ def test_render_refuses_other_models():
 def test_top_level_exports():
     assert issubclass(optitact.PinholeCamera, Camera) and issubclass(optitact.FisheyeCamera, Camera)
     assert optitact.read_opencv_calibration is read_opencv_calibration
+
+
+def test_a_calibration_for_another_camera_model_saves_and_loads(tmp_path):
+    """A calibration keeps its camera's model through save/load; its fingerprint covers the camera."""
+    import dataclasses
+
+    from optitact.calib import Calibration, default_calibration
+
+    shipped = default_calibration()
+    cam = PinholeCamera(width=640, height=480, fx=300.0, fy=302.0, cx=321.5, cy=238.0,
+                        dist=(-0.05, 0.01, 1e-4, -2e-4), tvec=(0.1, -0.2, 5.0))
+    cal = dataclasses.replace(shipped, camera=cam)
+    path = tmp_path / "pinhole.json"
+    cal.save(path)
+    back = Calibration.load(path)
+    assert isinstance(back.camera, PinholeCamera) and back.camera == cam
+    assert back.fingerprint != shipped.fingerprint
+    np.testing.assert_array_equal(back.g, shipped.g)
