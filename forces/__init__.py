@@ -307,7 +307,7 @@ class ForceField:
     def from_csv(cls, path: str | os.PathLike, sensor: DomeSensor) -> ForceField:
         """Read a force field from CSV: the files :meth:`to_csv` writes, and those people write.
 
-        Columns are found by header name (:func:`optitact.io.read_element_table`):
+        Columns are found by header name (:func:`optitact.tables.read_element_table`):
         ``fx, fy, fz`` (element-local, N) are needed, in any order, whatever
         their case and a unit in parentheses or brackets (``Fx (N)``);
         ``element``, the global columns ``fx_global, fy_global, fz_global``
@@ -332,7 +332,7 @@ class ForceField:
             twice, a delimiter that cannot be told, or global columns that
             disagree with the local forces for ``sensor``.
         """
-        from optitact.io import read_element_table
+        from optitact.tables import read_element_table
 
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")

@@ -3,7 +3,7 @@
 :func:`process_files` reads every frame of the sources in order, turns them
 into readings with a :class:`~optitact.Pipeline` (and into forces with a
 calibration), and returns the table or writes it as CSV
-(:class:`~optitact.io.ReadingsWriter`). ``optitact process`` is this function
+(:class:`~optitact.tables.ReadingsWriter`). ``optitact process`` is this function
 behind a command line; it runs here, or on a Dask cluster with one task per
 file (the same table either way).
 
@@ -36,7 +36,7 @@ import numpy as np
 from ._validate import integer
 from .errors import InputError, OptitactError
 from .frames import count_frames, expand_sources, iter_frames
-from .io import ReadingsWriter
+from .tables import ReadingsWriter
 from .pipeline import Pipeline, take_baseline
 from .readings import Readings
 from .steps import check_frames
@@ -96,7 +96,7 @@ class ProcessedFrames:
 
 
 class _Table:
-    """The in-memory counterpart of :class:`~optitact.io.ReadingsWriter` (same ``write``)."""
+    """The in-memory counterpart of :class:`~optitact.tables.ReadingsWriter` (same ``write``)."""
 
     def __init__(self, *, forces: bool, sensor=None) -> None:
         self.with_forces, self.sensor, self.frames = forces, sensor, 0
@@ -203,7 +203,7 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         Also estimate forces: the element-local ``fx, fy, fz``, the global
         ``fx_global, fy_global, fz_global`` and ``clamped`` of every element,
         and per frame the resultant, total normal force and centre of
-        pressure (see :class:`~optitact.io.ReadingsWriter`).
+        pressure (see :class:`~optitact.tables.ReadingsWriter`).
     baseline : (H, W) or (T, H, W) array_like, optional
         No-load frame(s) to use as the pipeline's baseline.
     baseline_frames : int
@@ -219,7 +219,7 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         renamed), so an existing ``out`` is never replaced by a partial table;
         if the run fails, the rows of the frames done so far are kept as
         ``NAME.partial.csv`` and the error says so (see
-        :class:`~optitact.io.ReadingsWriter`).
+        :class:`~optitact.tables.ReadingsWriter`).
     batch : int
         Frames processed together (default 32); the results do not depend on it.
     scheduler : str or distributed.Client, optional

@@ -1,37 +1,47 @@
-"""Reading and writing forces and frames.
+"""Atomic file writes, and the JSON, PNG and NPY writers built on them.
 
-Forces CSV format: columns ``fx, fy, fz`` (element-local, N) and optionally
-``element``. With a header row the columns are found by name, in any order,
-whatever their case and a unit in parentheses or brackets (``Fx (N)``); other
-columns are ignored. With an ``element`` column any subset of the elements may
-be listed, each at most once (the others are unloaded); without one, one row
-per element in element order. Without a header the columns are
-``fx, fy, fz`` or ``element, fx, fy, fz``. The delimiter is ``,``, ``;`` or tab
-(sniffed), a UTF-8 byte-order mark (Excel) is fine, and blank lines and lines
-starting with ``#`` are ignored.
+:func:`atomic_write` fills a temporary file beside the target and renames
+it, so a reader sees the old file or the complete new one; the writers of
+this module (:func:`write_json`, :func:`write_png`, :func:`write_npy`,
+:func:`atomic_write_text`, :func:`atomic_write_png_figure`) all go through
+it. :func:`json_fingerprint` keys caches and calibration files by their
+settings.
+
+The CSV tables (forces in, readings out) live in :mod:`optitact.tables`;
+their names are importable from here too (``from optitact.io import
+read_forces_csv, ReadingsWriter``).
 """
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
-import math
 import os
-import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, ShapeError
+from .tables import (
+    CSV_DELIMITERS,
+    ReadingsWriter,
+    add_to_message,
+    column_key,
+    csv_numbers,
+    csv_rows,
+    partial_path,
+    per_frame_path,
+    read_element_table,
+    read_forces_csv,
+    sniff_delimiter,
+    write_forces_csv,
+)
 
 __all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
            "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy",
            "read_element_table", "csv_rows", "column_key",
-           "partial_path", "per_frame_path"]
-
-_HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
+           "partial_path", "per_frame_path", "csv_numbers", "sniff_delimiter", "add_to_message",
+           "CSV_DELIMITERS"]
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
@@ -119,281 +129,6 @@ def json_fingerprint(obj, n: int = 16) -> str:
     return hashlib.sha256(key.encode()).hexdigest()[:n]
 
 
-#: Delimiters a CSV file may use (sniffed): comma, semicolon (Excel in many locales), tab.
-CSV_DELIMITERS = ",;\t"
-
-
-def column_key(name: str) -> str:
-    """A CSV header cell as a column name: case-folded, units in ``(...)``/``[...]`` and a BOM dropped.
-
-    Examples
-    --------
-    >>> column_key("\ufeffFx (N)"), column_key(" fz_global [N] "), column_key("Element")
-    ('fx', 'fz_global', 'element')
-    """
-    key = name.replace("\ufeff", "").strip()
-    key = re.sub(r"\s*[\(\[][^\)\]]*[\)\]]\s*$", "", key)
-    return key.strip().lower()
-
-
-def _delimiter_name(d: str) -> str:
-    return {",": "',' (comma)", ";": "';' (semicolon)", "\t": "tab"}.get(d, repr(d))
-
-
-def sniff_delimiter(lines: Sequence[str], path) -> str:
-    """The delimiter of CSV ``lines`` among :data:`CSV_DELIMITERS` (``csv.Sniffer``).
-
-    Lines holding none of them (a one-column file) read as comma-separated;
-    an InputError naming the candidates and the first line when the sniffer
-    cannot tell.
-    """
-    sample = "\n".join(lines[:50])
-    if not any(d in sample for d in CSV_DELIMITERS):
-        return ","
-    try:
-        return csv.Sniffer().sniff(sample, delimiters=CSV_DELIMITERS).delimiter
-    except csv.Error:
-        raise InputError(
-            f"{path}: cannot tell the delimiter of this CSV file (tried ',' (comma), ';' (semicolon) "
-            f"and tab; the columns must be separated by one of them on every line); its first line "
-            f"reads {lines[0][:80]!r}") from None
-
-
-def csv_rows(path: str | os.PathLike, delimiter: str | None = None) -> list[tuple[int, list[str]]]:
-    """Non-blank, non-comment rows of a CSV file as ``(line number, stripped cells)``.
-
-    The file is UTF-8, with or without a byte-order mark (Excel writes one);
-    ``delimiter`` None sniffs it among :data:`CSV_DELIMITERS`
-    (:func:`sniff_delimiter`). Lines whose first cell starts with ``#`` are
-    comments.
-    """
-    return _csv_rows(path, delimiter)[0]
-
-
-def _csv_rows(path, delimiter: str | None = None) -> tuple[list[tuple[int, list[str]]], str]:
-    """:func:`csv_rows` and the delimiter used."""
-    with Path(path).open(newline="", encoding="utf-8-sig") as fh:
-        text = fh.read()
-    lines = text.splitlines()
-    if delimiter is None:
-        content = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
-        delimiter = sniff_delimiter(content, path) if content else ","
-    rows: list[tuple[int, list[str]]] = []
-    for lineno, row in enumerate(csv.reader(lines, delimiter=delimiter), start=1):
-        cells = [c.strip() for c in row]
-        if not any(cells) or cells[0].startswith("#"):
-            continue
-        rows.append((lineno, cells))
-    return rows, delimiter
-
-
-def csv_numbers(cells: Sequence[str], path, lineno: int, first_column: int = 1) -> list[float]:
-    """Parse CSV cells as finite numbers; InputError naming line and column otherwise."""
-    out = []
-    for j, cell in enumerate(cells, start=first_column):
-        try:
-            v = float(cell)
-        except ValueError:
-            raise InputError(f"{path}, line {lineno}, column {j}: {cell!r} is not a number") from None
-        if not math.isfinite(v):
-            raise InputError(f"{path}, line {lineno}, column {j}: {cell!r} is not finite")
-        out.append(v)
-    return out
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
-
-
-_FLAG_CELLS = {"0": False, "1": True, "false": False, "true": True}
-
-
-def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequence[str], *,
-                       optional: Sequence[str] = (), flags: Sequence[str] = (),
-                       headerless: bool = True, what: str = "forces") -> dict[str, np.ndarray]:
-    """Per-element columns of a CSV file, found by their header names.
-
-    Parameters
-    ----------
-    path : path-like
-        The CSV file: UTF-8 (a byte-order mark is fine), delimited by ``,``,
-        ``;`` or tab (sniffed), blank and ``#`` lines ignored.
-    n_elements : int
-        Elements of the sensor.
-    numbers : sequence of str
-        Required number columns (e.g. ``fx, fy, fz``).
-    optional : sequence of str
-        Number columns read when present.
-    flags : sequence of str
-        0/1 (or true/false) columns read when present.
-    headerless : bool
-        Allow a file without a header: its columns are then ``numbers`` or
-        ``element`` and ``numbers``, in that order.
-    what : str
-        What the file holds, for messages.
-
-    Returns
-    -------
-    dict of str to (n_elements,) ndarray
-        Every present column (float64, flags bool), in element order; with an
-        ``element`` column, elements without a row are 0 (flags False).
-
-    Notes
-    -----
-    Header cells match column names whatever their case, surrounding blanks
-    and a trailing unit in parentheses or brackets (``Fx (N)`` is ``fx``), in
-    any order; other columns are ignored. Without an ``element`` column there
-    is one row per element, in element order; with one, any subset of the
-    elements in any order (each at most once).
-
-    Raises
-    ------
-    FileNotFoundError
-        If the file does not exist.
-    ShapeError
-        A missing column, a row of the wrong width, the wrong number of rows.
-    InputError
-        An unknown delimiter, a cell that is not a finite number or flag (the
-        message gives line and column), an element index that does not
-        exist or appears twice.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} file not found: {path}")
-    rows, delim = _csv_rows(path)
-    wanted = list(numbers)
-    if not rows:
-        raise ShapeError(f"{path}: expected {n_elements} rows of {', '.join(wanted)}, got none")
-    first = rows[0][1]
-    known = {"element", *wanted, *optional, *flags}
-    # a header names a known column or holds no number; anything else is a row of data
-    data_first = not any(column_key(c) in known for c in first) and any(_is_number(c) for c in first)
-    if headerless and data_first:
-        if len(first) not in (len(wanted), len(wanted) + 1):
-            raise ShapeError(f"{path}, line {rows[0][0]}: expected {len(wanted)} columns "
-                             f"({', '.join(wanted)}) or {len(wanted) + 1} (element, {', '.join(wanted)}), "
-                             f"got {len(first)}")
-        header = wanted if len(first) == len(wanted) else ["element", *wanted]
-    else:
-        if data_first:
-            raise ShapeError(f"{path}, line {rows[0][0]}: no header row; expected one naming the columns "
-                             f"{', '.join(wanted)} (any order), optionally element")
-        header = [column_key(c) for c in first]
-        header_line, rows = rows[0][0], rows[1:]
-        twice = sorted({k for k in header if k and header.count(k) > 1})
-        if twice:
-            raise ShapeError(f"{path}, line {header_line}: the column {twice[0]!r} appears twice in "
-                             f"the header")
-        missing = [k for k in wanted if k not in header]
-        if missing:
-            raise ShapeError(
-                f"{path}: no column {', '.join(missing)} in the header {first} (read with delimiter "
-                f"{_delimiter_name(delim)}); expected the columns {', '.join(wanted)} (any order, case "
-                f"and units like 'Fx (N)'), optionally element")
-    width = len(header)
-    cols = {k: header.index(k) for k in (*wanted, *optional, *flags) if k in header}
-    number_names = [k for k in (*wanted, *optional) if k in cols]
-    flag_names = [k for k in flags if k in cols]
-    has_element = "element" in header
-    if not rows:
-        raise ShapeError(f"{path}: expected {n_elements} rows of {', '.join(wanted)}, got none")
-    if not has_element and len(rows) != n_elements:
-        raise ShapeError(f"{path}: expected {n_elements} rows (one per element), got {len(rows)}")
-    out = {k: np.zeros(n_elements) for k in number_names}
-    out.update({k: np.zeros(n_elements, bool) for k in flag_names})
-    row_of: dict[int, int] = {}
-    for i, (lineno, cells) in enumerate(rows):
-        if len(cells) != width:
-            raise ShapeError(f"{path}, line {lineno}: expected {width} columns, got {len(cells)}")
-        if has_element:
-            j = header.index("element")
-            cell = cells[j]
-            try:
-                e = float(cell)
-            except ValueError:
-                e = math.nan
-            if not (e.is_integer() and 0 <= e < n_elements):
-                raise InputError(f"{path}, line {lineno}, column {j + 1}: element {cell!r} does not exist "
-                                 f"(the element column must read 0, 1, ..., {n_elements - 1}, each at "
-                                 f"most once)")
-            e = int(e)
-            if e in row_of:
-                raise InputError(f"{path}, line {lineno}: element {e} appears twice (also on line "
-                                 f"{row_of[e]}); the element column must read 0, 1, ..., "
-                                 f"{n_elements - 1}, each at most once")
-            row_of[e] = lineno
-        else:
-            e = i
-        for k in number_names:
-            out[k][e] = csv_numbers([cells[cols[k]]], path, lineno, first_column=cols[k] + 1)[0]
-        for k in flag_names:
-            flag = _FLAG_CELLS.get(cells[cols[k]].lower())
-            if flag is None:
-                raise InputError(f"{path}, line {lineno}, column {cols[k] + 1} ({k}): expected 0 or 1, "
-                                 f"got {cells[cols[k]]!r}")
-            out[k][e] = flag
-    return out
-
-
-def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
-    r"""Read element-local forces (N) from a CSV file.
-
-    Parameters
-    ----------
-    path : path-like
-        The CSV file (see the module docstring for the format).
-    n_elements : int
-        Number of elements of the sensor.
-
-    Returns
-    -------
-    (n_elements, 3) float64 ndarray
-
-    Raises
-    ------
-    FileNotFoundError
-        If the file does not exist.
-    InputError
-        A cell that is not a finite number (the message gives line and column),
-        an element index that does not exist or appears twice, a delimiter
-        that cannot be told.
-    ShapeError
-        Wrong number of rows or columns, a missing column.
-
-    Examples
-    --------
-    Excel's way (byte-order mark, ``;``, units), one loaded element listed:
-
-    >>> import pathlib, tempfile
-    >>> p = pathlib.Path(tempfile.mkdtemp()) / "f.csv"
-    >>> _ = p.write_text("\ufeffElement;Fz (N);Fy (N);Fx (N)\n3;0.5;0;0.1\n", encoding="utf-8")
-    >>> f = read_forces_csv(p, 41)
-    >>> f.shape, f[3].tolist(), float(abs(f).sum() - 0.6) < 1e-12
-    ((41, 3), [0.1, 0.0, 0.5], True)
-    """
-    cols = read_element_table(path, n_elements, _HEADERS[0])
-    return np.stack([cols[k] for k in _HEADERS[0]], axis=1)
-
-
-def write_forces_csv(path: str | os.PathLike, forces: np.ndarray) -> None:
-    """Write element-local forces (N, 3) as ``element, fx, fy, fz`` CSV with a header (atomically)."""
-    f = np.asarray(forces, dtype=np.float64)
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ShapeError(f"forces must have shape (N, 3), got {f.shape}")
-
-    def write(tmp: Path) -> None:
-        with tmp.open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(_HEADERS[1])
-            for i, row in enumerate(f):
-                w.writerow([i, *(repr(float(v)) for v in row)])
-
-    atomic_write(path, write)
-
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write a uint8/uint16 greyscale or (H, W, 3) BGR image as PNG (OpenCV, atomically)."""
@@ -423,205 +158,3 @@ def write_json(path: str | os.PathLike, obj) -> None:
         raise TypeError(f"cannot write {type(o).__name__} as JSON")
 
     atomic_write_text(path, json.dumps(obj, indent=2, default=default) + "\n")
-
-
-def _csv_cell(text: str) -> str:
-    """``text`` as one CSV cell (quoted as :mod:`csv` does when it holds a delimiter, quote or newline)."""
-    if any(ch in text for ch in ',"\r\n'):
-        return '"' + text.replace('"', '""') + '"'
-    return text
-
-
-def add_to_message(exc: BaseException, text: str) -> None:
-    """Append ``text`` to the message of ``exc`` (the one the command line prints), in place."""
-    if isinstance(exc, OSError) and exc.strerror:
-        exc.strerror += text
-    elif len(exc.args) == 1 and isinstance(exc.args[0], str):
-        exc.args = (exc.args[0] + text,)
-    else:
-        exc.add_note(text.strip())
-
-
-def partial_path(path: str | os.PathLike) -> Path:
-    """Where :class:`ReadingsWriter` keeps the rows of a run that failed: ``out.csv`` -> ``out.partial.csv``."""
-    path = Path(path)
-    return path.with_name(f"{path.stem}.partial{path.suffix}")
-
-
-def per_frame_path(path: str | os.PathLike) -> Path:
-    """The per-frame table beside a forces table: ``out.csv`` -> ``out.per_frame.csv``."""
-    path = Path(path)
-    return path.with_name(f"{path.stem}.per_frame{path.suffix}")
-
-
-class _PartialFile:
-    """A CSV file written beside ``path`` as ``.NAME.PID.partial``, renamed when complete."""
-
-    def __init__(self, path: Path, header: Sequence[str], tmp: Path | None = None) -> None:
-        self.path = path
-        self.tmp = tmp if tmp is not None else path.with_name(f".{path.name}.{os.getpid()}.partial")
-        self.fh = self.tmp.open("w", newline="", encoding="utf-8")
-        self.fh.write(",".join(header) + "\r\n")
-
-    def finish(self, to: Path | None) -> None:
-        """Close, then rename to ``to`` (None: delete)."""
-        if not self.fh.closed:
-            self.fh.close()
-        if to is None:
-            self.tmp.unlink(missing_ok=True)
-        elif self.tmp.exists():
-            os.replace(self.tmp, to)
-
-
-class ReadingsWriter:
-    """Append readings (and estimated forces) to a CSV file, one row per frame and element.
-
-    Columns: ``frame, source, element, G, ux, uy, contact, saturated`` (G in
-    grey level x mm^2, u in mm, flags as 0/1; numbers written with the
-    shortest digits that read back to the same float64). With ``forces=True``
-    also ``fx, fy, fz`` (element-local, N), ``fx_global, fy_global,
-    fz_global`` (the force on the element in the sensor frame, N; as
-    :meth:`optitact.forces.ForceField.as_dict`) and ``clamped`` (the
-    calibration clamped the reading to its fitted range); and a second table,
-    :func:`per_frame_path` (``out.per_frame.csv``), with one row per frame:
-    :data:`FRAME_COLUMNS`, i.e. ``frame, source``, the elements in contact and
-    clamped, ``total_normal`` (sum of Fz over contact elements, N), the
-    resultant force ``resultant_x, resultant_y, resultant_z`` (global, N) and
-    the centre of pressure ``centre_of_pressure_x, _y, _z`` (mm, on the outer
-    surface; empty when no element carries a normal force), as
-    :class:`~optitact.forces.ForceField` computes them. Both tables read with
-    ``pandas.read_csv`` as they are. Use as a context manager.
-
-    Rows go to a hidden temporary file beside ``path`` (``.NAME.PID.partial``),
-    renamed to ``path`` on :meth:`close`: a reader never sees half a table,
-    and an existing ``path`` stays as it was until the new table is complete.
-    Leaving the ``with`` block by an exception keeps the rows written so far
-    as :func:`partial_path` (``out.partial.csv``; nothing when no frame was
-    written) and adds where they are to the exception's message; a killed
-    process leaves its hidden temporary file and ``path`` untouched.
-
-    With ``visible=True`` (a live stream, which has no end to wait for) the
-    rows go to :func:`partial_path` from the start instead, so that readers
-    see them as they come (call :meth:`flush` after each frame); ``close``
-    renames them just the same.
-    """
-
-    COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
-    FORCE_COLUMNS = ("fx", "fy", "fz", "fx_global", "fy_global", "fz_global", "clamped")
-    FRAME_COLUMNS = ("frame", "source", "n_contact", "n_clamped", "total_normal", "resultant_x",
-                     "resultant_y", "resultant_z", "centre_of_pressure_x", "centre_of_pressure_y",
-                     "centre_of_pressure_z")
-
-    def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None,
-                 visible: bool = False) -> None:
-        self.path = Path(path)
-        self.with_forces = forces
-        if forces:
-            from optitact.sensor import DomeSensor
-
-            if not isinstance(sensor, DomeSensor):
-                raise TypeError(f"a ReadingsWriter with forces needs the sensor (a DomeSensor) for the "
-                                f"global forces, got {type(sensor).__name__}")
-        self.sensor = sensor
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        def partial(target: Path, header: Sequence[str]) -> _PartialFile:
-            return _PartialFile(target, header, partial_path(target) if visible else None)
-
-        self._files = [partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))]
-        if forces:
-            self._files.append(partial(per_frame_path(self.path), self.FRAME_COLUMNS))
-        self._fh = self._files[0].fh
-        self.frames = 0
-
-    def flush(self) -> None:
-        """Hand the rows written so far to the operating system (they survive a crash of this process)."""
-        for f in self._files:
-            f.fh.flush()
-
-    @property
-    def paths(self) -> list[Path]:
-        """The files this writer makes: ``path`` (and :func:`per_frame_path` with forces)."""
-        return [f.path for f in self._files]
-
-    def write(self, readings, sources: Sequence[str], forces=None, clamped=None) -> None:
-        """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept."""
-        r = readings if readings.is_stack else readings._lifted()
-        n, n_el = len(r), r.n_elements
-        if n != len(sources):
-            raise ShapeError(f"got readings of {n} frames for {len(sources)} sources")
-        # repr of a Python float is the shortest string that reads back to the same float64, so
-        # sums over the file (10^6 rows and more) equal sums over the readings bit for bit
-        g, ux, uy = r.G.tolist(), r.u[..., 0].tolist(), r.u[..., 1].tolist()
-        contact, saturated = r.contact.tolist(), r.saturated.tolist()
-        elements = range(n_el)
-        lines: list[str] = []
-        if not self.with_forces:
-            for k, src in enumerate(sources):
-                head = f"{self.frames + k},{_csv_cell(src)},"
-                lines += [f"{head}{i},{a!r},{b!r},{c!r},{d:d},{e:d}\r\n"
-                          for i, a, b, c, d, e
-                          in zip(elements, g[k], ux[k], uy[k], contact[k], saturated[k], strict=True)]
-            self._files[0].fh.write("".join(lines))
-            self.frames += n
-            return
-        if forces is None or clamped is None:
-            raise ValueError("this writer has force columns: pass forces and clamped")
-        from optitact.forces import frame_totals
-
-        f = np.asarray(forces, dtype=np.float64).reshape(n, n_el, 3)
-        cl = np.asarray(clamped, dtype=bool).reshape(n, n_el)
-        tot = frame_totals(self.sensor, f, r.contact)
-        fx, fy, fz = f[..., 0].tolist(), f[..., 1].tolist(), f[..., 2].tolist()
-        gl = tot["global"]
-        gx, gy, gz = gl[..., 0].tolist(), gl[..., 1].tolist(), gl[..., 2].tolist()
-        clamped_ = cl.tolist()
-        per_frame = []
-        res, cop = tot["resultant"].tolist(), tot["centre_of_pressure"].tolist()
-        for k, src in enumerate(sources):
-            cell = _csv_cell(src)
-            head = f"{self.frames + k},{cell},"
-            lines += [f"{head}{i},{a!r},{b!r},{c!r},{d:d},{e:d},{p!r},{q!r},{s!r},{x!r},{y!r},{z!r},{h:d}\r\n"
-                      for i, a, b, c, d, e, p, q, s, x, y, z, h
-                      in zip(elements, g[k], ux[k], uy[k], contact[k], saturated[k], fx[k], fy[k], fz[k],
-                             gx[k], gy[k], gz[k], clamped_[k], strict=True)]
-            where = ",".join("" if math.isnan(v) else repr(v) for v in cop[k])
-            per_frame.append(f"{head}{int(tot['n_contact'][k])},{int(cl[k].sum())},"
-                             f"{float(tot['total_normal'][k])!r},{res[k][0]!r},{res[k][1]!r},{res[k][2]!r},"
-                             f"{where}\r\n")
-        self._files[0].fh.write("".join(lines))
-        self._files[1].fh.write("".join(per_frame))
-        self.frames += n
-
-    def close(self) -> None:
-        """Close the files and move them to their paths (again: nothing)."""
-        for f in reversed(self._files):  # the main table last: when it is there, both are
-            f.finish(f.path)
-
-    def discard(self) -> None:
-        """Close and delete the rows written so far; ``path`` is left as it was."""
-        for f in self._files:
-            f.finish(None)
-
-    def keep_partial(self) -> list[Path]:
-        """Close and keep the rows written so far as :func:`partial_path` files (none without rows)."""
-        if not self.frames:
-            self.discard()
-            return []
-        kept = [partial_path(f.path) for f in self._files]
-        for f, to in zip(self._files, kept, strict=True):
-            f.finish(to)
-        return kept
-
-    def __enter__(self) -> ReadingsWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-            return
-        kept = self.keep_partial()
-        if kept and exc is not None:
-            frames = f"{self.frames} frame{'s were' if self.frames != 1 else ' was'}"
-            add_to_message(exc, f" [{frames} written before this error: their rows are "
-                                f"in {', '.join(map(str, kept))}, a partial table; "
-                                f"{self.path} was not written]")

@@ -50,7 +50,7 @@ import numpy as np
 from ._validate import integer, positive
 from .errors import InputError, ShapeError
 from .frames import _grey, check_codec
-from .io import ReadingsWriter
+from .tables import ReadingsWriter
 from .pipeline import Pipeline
 from .readings import Readings
 
@@ -435,10 +435,10 @@ class LiveWriter:
     """Write live frames as CSV rows the moment they come: on disk after every frame.
 
     The same tables as ``optitact process`` writes
-    (:class:`~optitact.io.ReadingsWriter`: one row per frame and element,
+    (:class:`~optitact.tables.ReadingsWriter`: one row per frame and element,
     with a calibration the force columns and ``NAME.per_frame.csv``), but a
     live stream has no end to wait for, so the rows go to
-    :func:`~optitact.io.partial_path` (``NAME.partial.csv``) and are flushed
+    :func:`~optitact.tables.partial_path` (``NAME.partial.csv``) and are flushed
     after every frame: a reader (``tail -f``, pandas) sees them as they come,
     and a crash or a killed process leaves them there. A clean stop (the
     ``with`` block ends without an error, which is how ``optitact process

@@ -148,7 +148,7 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
         ``"path"`` (default, the reference): brute-force path tracing of the
         whole light transport at ``spp``. ``"two_stage"``: the light guided to
         each patch comes from a cached table measured once by path tracing
-        (:func:`~optitact.render.twostage.emission_table`), and the patches
+        (:func:`~optitact.render.emission.emission_table`), and the patches
         are traced in closed form as emitters seen through the dome
         (:func:`~optitact.render.twostage.render_two_stage`): no Monte Carlo
         noise, milliseconds per frame; ``spp`` and ``pixels`` are not used,

@@ -258,27 +258,27 @@ def test_fitting_an_incomplete_set_is_refused_unless_asked(cheap, tmp_path, monk
 def no_path_tracing(monkeypatch):
     """Every way stage 1 could path-trace raises: what runs must use a table it already has."""
     import optitact.render
-    import optitact.render.twostage as ts
+    import optitact.render.emission as em
 
     def refuse(*args, **kwargs):
         raise Crash("stage 1 rendered")
 
-    for module, name in ((ts, "_measure"), (ts, "noload_radiance"), (optitact.render, "render_contacts")):
+    for module, name in ((em, "_measure"), (em, "noload_radiance"), (optitact.render, "render_contacts")):
         monkeypatch.setattr(module, name, refuse)
-    return ts
+    return em
 
 
 def test_the_default_sensor_and_camera_use_the_shipped_table(no_path_tracing, cheap, tmp_path, capsys):
-    ts = no_path_tracing
+    em = no_path_tracing
     camera = optitact.FisheyeCamera()
-    table = ts.emission_table(SENSOR, camera, progress=True)
+    table = em.emission_table(SENSOR, camera, progress=True)
     meta = table.meta
     assert meta["sensor"] == SENSOR.to_dict() and meta["camera"] == camera.to_dict()
     assert meta["settings"] == optitact.render.RenderSettings().to_dict() and meta["spp"] == 4096
-    assert table.radiance.shape == (len(ts.TABLE_THETA_DEG), len(ts.TABLE_RADII_MM))
+    assert table.radiance.shape == (len(em.TABLE_THETA_DEG), len(em.TABLE_RADII_MM))
     assert np.all(table.radiance > 0) and np.all(np.isfinite(table.coupling))
     assert np.median(table.stderr / table.radiance) < 0.02  # measured at 4096 spp: 0.8 %
-    assert ts.emission_table(SENSOR, camera, spp=meta["spp"]) is not None
+    assert em.emission_table(SENSOR, camera, spp=meta["spp"]) is not None
     assert capsys.readouterr().err == ""  # nothing to announce: no one-time step
     # `calibrate generate` with every default (two-stage frames, 640x480) starts on its frames at once
     out = tmp_path / "s.zarr"
@@ -290,7 +290,7 @@ def test_the_default_sensor_and_camera_use_the_shipped_table(no_path_tracing, ch
     for kw in ({"camera": TINY}, {"camera": camera, "spp": 256},
                {"camera": camera, "settings": optitact.render.RenderSettings(rim_radiance=2.0)}):
         with pytest.raises(Crash):
-            ts.emission_table(SENSOR, progress=True, **kw)
+            em.emission_table(SENSOR, progress=True, **kw)
         err = capsys.readouterr().err
         assert "one-time step" in err and "cached in" in err and "Estimate:" in err
     with pytest.raises(Crash):
@@ -301,16 +301,16 @@ def test_the_default_sensor_and_camera_use_the_shipped_table(no_path_tracing, ch
 
 def test_a_measured_table_reestimates_its_time_after_the_first_render(monkeypatch, capsys):
     """The estimate printed before stage 1 is re-measured from its first render (stand-in renders)."""
-    import optitact.render.twostage as ts
+    import optitact.render.emission as em
 
-    monkeypatch.setattr(ts, "noload_radiance", lambda sensor, camera, **kw: np.zeros(camera.shape, np.float32))
+    monkeypatch.setattr(em, "noload_radiance", lambda sensor, camera, **kw: np.zeros(camera.shape, np.float32))
 
     def measure(sensor, camera, settings, probes_c, probes_r, extra_c, extra_r, **kw):
         n = len(probes_r)
         return np.full(n, 1.0 - 0.01 * len(extra_r)), np.full(n, 1e-3)
 
-    monkeypatch.setattr(ts, "_measure", measure)
-    table = ts.emission_table(SENSOR, TINY, spp=64, cache=False, progress=True)
+    monkeypatch.setattr(em, "_measure", measure)
+    table = em.emission_table(SENSOR, TINY, spp=64, cache=False, progress=True)
     err = capsys.readouterr().err
     assert err.index("one-time step") < err.index("the first render took") < err.index("32/32")
     assert "32 path-traced renders at 64 spp" in err and "for the other 31" in err

@@ -180,7 +180,7 @@ def run_process(args) -> int:
     """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
     from optitact.batch import process_files
     from optitact.frames import expand_sources, iter_frames
-    from optitact.io import per_frame_path
+    from optitact.tables import per_frame_path
 
     _check_out(args.out, "--out")
     _check_out(args.plot, "--plot")
@@ -317,7 +317,7 @@ def _run_live(args) -> int:
     """``optitact process --camera``: stream, write the rows as they come, print a summary."""
     import time
 
-    from optitact.io import partial_path, per_frame_path
+    from optitact.tables import partial_path, per_frame_path
     from optitact.live import LiveWriter, _policy, source_label, stream
 
     if args.frames:
