@@ -43,12 +43,17 @@ __all__ = [
     "dome_from_pixel",
     "pixel_from_dome",
     "read_opencv_calibration",
+    "register",
 ]
 
 _SUBPACKAGES = ("render", "calib", "forces", "live")
 
 
 def __getattr__(name: str):
+    if name == "register":  # lazily: registration imports scipy.optimize
+        from .register import register
+
+        return register
     if name in _SUBPACKAGES:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
