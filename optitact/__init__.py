@@ -17,6 +17,7 @@ from .dome_optics import dome_from_pixel, pixel_from_dome
 from .errors import InputError, OptitactError, OptitactWarning, RenderError, ShapeError
 from .pipeline import Pipeline
 from .readings import Readings
+from .register import register  # the function (scipy.optimize is imported when it runs)
 from .sensor import DomeSensor
 
 __version__ = "0.1.0"
@@ -50,10 +51,6 @@ _SUBPACKAGES = ("render", "calib", "forces", "live")
 
 
 def __getattr__(name: str):
-    if name == "register":  # lazily: registration imports scipy.optimize
-        from .register import register
-
-        return register
     if name in _SUBPACKAGES:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -76,6 +76,8 @@ MAX_CONDITION = 1e10
 #: A cluster whose intensity-weighted RMS radius is below this fraction of the element ring's predicted one
 #: is not an element (a reflection or a hot pixel).
 MIN_RING_FRACTION = 0.6
+#: Most iterations of the least-squares fit (each costs a Jacobian by finite differences).
+MAX_ITERATIONS = 60
 #: Prior standard deviation of the per-element position offsets (mm), when they are fitted.
 OFFSET_PRIOR_MM = 0.2
 
@@ -406,7 +408,7 @@ def _fit(model: _Model, elements, measured, f_scale: float, x0=None):
 
     return least_squares(model.residuals, model.x0 if x0 is None else x0, args=(elements, measured),
                          loss="soft_l1", f_scale=f_scale, x_scale="jac", method="trf", xtol=1e-12, ftol=1e-12,
-                         gtol=1e-12, max_nfev=200 * len(model.x0))
+                         gtol=1e-12, max_nfev=MAX_ITERATIONS)
 
 
 def _check_conditioning(jac: np.ndarray, names: list[str], n_elements: int) -> np.ndarray:
@@ -650,12 +652,12 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
         raise RegistrationError(f"too few elements: {n_el} distinct element(s) fit without outliers, and "
                                 f"registration needs at least {need}; press more elements, spread over the "
                                 f"rings")
-    if not res.success:
-        raise RegistrationError(f"the fit did not converge ({res.message}); press more elements, spread over "
-                                f"the rings and further from the apex")
     fit_sensor, fit_camera, offsets = model.build(res.x)
     m, n = res.fun.size, res.x.size
     cov = _check_conditioning(res.jac, model.names, n_el)
+    if not res.success:
+        raise RegistrationError(f"the fit did not converge ({res.message}); press more elements, spread over "
+                                f"the rings and further from the apex")
     r = res.fun[:2 * len(elements)].reshape(-1, 2)
     dof = max(m - n, 1)
     s2 = float(np.sum(res.fun ** 2)) / dof

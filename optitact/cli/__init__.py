@@ -1,5 +1,4 @@
-"""Command-line interface: ``optitact demo``, ``render``, ``process``, ``register``, ``calibrate``, ``bench``,
-``experiment``.
+"""Command-line interface: ``optitact demo``, ``render``, ``process``, ``register``, ``calibrate``, ``bench``...
 
 Messages, warnings (one ``optitact: warning: ...`` line each) and progress
 bars go to stderr; ``bench`` prints one JSON object on stdout, ``experiment``

@@ -23,8 +23,8 @@ def add_parsers(sub) -> None:
                     "match them to elements and fit the camera's pose (optionally its intrinsics and the "
                     "dome's radius) by robust least squares. Writes a setup file (sensor, camera and a "
                     "registration report: reprojection RMS in pixels, standard errors, unseen elements) "
-                    "that optitact process --setup reads, and prints the report on stderr. Refuses, naming what "
-                    "to add, when the frames cannot pin the camera down.")
+                    "that optitact process --setup reads, and prints the report on stderr. Refuses, naming "
+                    "what to add, when the frames cannot pin the camera down.")
     reg.add_argument("noload", type=Path, metavar="NOLOAD",
                      help="a frame of the unloaded sensor (image or .npy; a .npy stack is averaged)")
     reg.add_argument("pressed", type=Path, nargs="+", metavar="PRESSED",
