@@ -45,7 +45,8 @@ def standin(seed: int) -> OpenCVFisheyeCamera:
     dist = (rng.uniform(-0.05, 0.05), rng.uniform(-0.02, 0.02), rng.uniform(-0.005, 0.005),
             rng.uniform(-0.002, 0.002))
     return OpenCVFisheyeCamera(W, H, fx=fx, fy=fx * (1 + rng.uniform(-0.003, 0.003)),
-                               cx=(W - 1) / 2 + rng.uniform(-8, 8), cy=(H - 1) / 2 + rng.uniform(-8, 8), dist=dist,
+                               cx=(W - 1) / 2 + rng.uniform(-8, 8), cy=(H - 1) / 2 + rng.uniform(-8, 8),
+                               dist=dist,
                                **pose_from_position((off * np.cos(a), off * np.sin(a), -5.0), rvec))
 
 
@@ -134,7 +135,7 @@ def test_register_recovers_the_pose_of_every_standin(standins):
 
 
 def test_register_fits_the_intrinsics(standins):
-    """From nominal intrinsics (distortion known): fx, cx, cy and the camera's height within 4 standard errors."""
+    """From nominal intrinsics (distortion known): fx, cx, cy, camera height within 4 standard errors."""
     for true, noload, pressed in standins[:4]:
         reg = register(noload, pressed, camera=replace(NOMINAL, dist=true.dist), fit_intrinsics=True)
         assert reg.rms_px <= 0.1
@@ -221,8 +222,8 @@ def test_cli_writes_a_setup_that_process_reads(standins, tmp_path, capsys):
     fs.write("distortion_model", "fisheye")
     fs.release()
     setup = tmp_path / "setup.json"
-    assert main(["register", str(tmp_path / "noload.png"), *names, "--camera-intrinsics", str(tmp_path / "cam.yml"),
-                 "--out", str(setup)]) == 0
+    assert main(["register", str(tmp_path / "noload.png"), *names, "--camera-intrinsics",
+                 str(tmp_path / "cam.yml"), "--out", str(setup)]) == 0
     assert capsys.readouterr().out.strip() == str(setup)
     doc = json.loads(setup.read_text())
     assert set(doc) == {"sensor", "camera", "registration"}
