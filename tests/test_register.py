@@ -257,3 +257,15 @@ def test_cli_refuses_pinhole_without_intrinsics(standins, tmp_path, capsys):
     assert main(["register", str(tmp_path / "n.png"), str(tmp_path / "p.png"), "--model", "pinhole",
                  "--out", str(tmp_path / "s.json")]) == 2
     assert "--model pinhole needs --camera-intrinsics" in capsys.readouterr().err
+
+
+def test_element_offsets_fit_with_their_prior(standins):
+    """Per-element offsets (prior 0.2 mm) on a sensor built to the design: they stay near 0, the pose holds."""
+    true, noload, pressed = standins[3]
+    start = replace(NOMINAL, fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, dist=true.dist)
+    reg = register(noload, pressed, camera=start, fit_offsets=True)
+    dpos, dang = pose_error(reg.camera, true)
+    assert dpos <= 0.05 and dang <= 0.1 and reg.rms_px <= 0.1
+    assert np.abs(reg.element_offsets).max() <= 0.05
+    assert "offset_2_x_mm" in reg.std_errors and "offset_2_x_mm" not in {f"offset_{e}_x_mm" for e in reg.unseen}
+    assert json.loads(json.dumps(reg.to_dict()))["registration"]["element_offsets_mm"]
