@@ -17,6 +17,7 @@ from .dome_optics import dome_from_pixel, pixel_from_dome
 from .errors import InputError, OptitactError, OptitactWarning, RenderError, ShapeError
 from .pipeline import Pipeline
 from .readings import Readings
+from .register import register  # the function (scipy.optimize is imported when it runs)
 from .sensor import DomeSensor
 
 __version__ = "0.1.0"
@@ -43,6 +44,7 @@ __all__ = [
     "dome_from_pixel",
     "pixel_from_dome",
     "read_opencv_calibration",
+    "register",
 ]
 
 _SUBPACKAGES = ("render", "calib", "forces", "live")

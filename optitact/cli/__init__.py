@@ -1,4 +1,4 @@
-"""Command-line interface: ``optitact demo``, ``render``, ``process``, ``calibrate``, ``bench``, ``experiment``.
+"""Command-line interface: ``optitact demo``, ``render``, ``process``, ``register``, ``calibrate``, ``bench``...
 
 Messages, warnings (one ``optitact: warning: ...`` line each) and progress
 bars go to stderr; ``bench`` prints one JSON object on stdout, ``experiment``
@@ -9,8 +9,8 @@ unwritable file) is a one-line ``optitact: error: ...`` and exit code 2; any
 other exception is a bug and shows its traceback.
 
 One module per command group: :mod:`~optitact.cli.demo` (demo, render,
-overlay), :mod:`~optitact.cli.process`, :mod:`~optitact.cli.calibrate`,
-:mod:`~optitact.cli.bench`, :mod:`~optitact.cli.experiment`; shared options
+overlay), :mod:`~optitact.cli.process`, :mod:`~optitact.cli.register`,
+:mod:`~optitact.cli.calibrate`, :mod:`~optitact.cli.bench`, :mod:`~optitact.cli.experiment`; shared options
 are argparse parent parsers (:mod:`~optitact.cli._args`).
 """
 
@@ -24,7 +24,7 @@ import warnings
 from optitact import __version__
 from optitact.errors import OptitactError, OptitactWarning
 
-from . import bench, calibrate, demo, experiment, process
+from . import bench, calibrate, demo, experiment, process, register
 from .demo import overlay
 
 __all__ = ["main", "overlay", "parser", "USER_ERRORS"]
@@ -42,7 +42,7 @@ def parser() -> argparse.ArgumentParser:
                     "sensor, process frames into forces.")
     p.add_argument("--version", action="version", version=f"optitact {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
-    for module in (demo, process, calibrate, bench, experiment):
+    for module in (demo, process, register, calibrate, bench, experiment):
         module.add_parsers(sub)
     return p
 

@@ -1,0 +1,677 @@
+"""Registration: fit the camera's pose (and optionally its intrinsics and the dome) to spots in real frames.
+
+A user's sensor is not the design: the camera sits a fraction of a millimetre
+off the axis, tilted by a degree or two, and its intrinsics may be known only
+roughly. :func:`register` takes a no-load frame and a few frames in which
+elements are pressed (one or several at a time, straight down), finds the
+bright spots in them, works out which element each group of spots belongs to
+and fits the camera to them by robust least squares. It does not need the
+pipeline or a calibration: registration comes first.
+
+Convention
+----------
+Pixels are ``(row, col)``, origin at the centre of the top-left pixel; dome
+points are global ``(x, y, z)`` in mm (see :mod:`optitact.sensor`); the
+camera's pose is OpenCV's ``rvec``/``tvec`` (see :mod:`optitact.camera_models`).
+
+Notes
+-----
+Steps (each checked, each refusal naming what to add):
+
+1. *Spots*: ``frame - noload``, thresholded at ``k`` times a robust noise
+   estimate (1.4826 x the median absolute deviation), connected components
+   (``cv2.connectedComponentsWithStats``, 8-connected).
+2. *Clusters*: a pressed element shows a ring of up to ``n_cones`` cone spots
+   (merged into one blob when the image is small); spots whose dome points
+   (seen with the nominal camera) lie within a cone-circle diameter are linked
+   into one cluster. Its centroid is the intensity-weighted centroid of its
+   pixels (grown by two pixels), the *model's* centroid the mean of the
+   projected cone patch centres of a pure normal press (:func:`contact_patches`
+   through :func:`pixel_from_dome`, refraction included): equal spots give the
+   same point. A cluster much more compact than an element's ring (a
+   reflection) is dropped.
+3. *Association*: the common image shift between clusters and the nominal
+   camera's predicted element centroids is voted for (every cluster-element
+   pair proposes one; the one most clusters agree with wins, the smallest on
+   a tie; a different shift with as many votes is an ambiguity), then a
+   Hungarian assignment per frame (``linear_sum_assignment``) with a gate of
+   :data:`GATE` times the local element spacing; clusters outside every gate
+   are rejected as extra reflections.
+4. *Fit*: ``scipy.optimize.least_squares`` (``loss="soft_l1"``, ``f_scale``
+   in pixels) of the measured minus the predicted cluster centroids over the
+   camera's rotation and centre (and ``fx, fy, cx, cy``, the dome's outer
+   radius, per-element tangent offsets with a prior, when asked); then the
+   clusters are associated again with the fitted camera and the fit repeated
+   until the association is stable. Standard errors are
+   ``sqrt(diag(s^2 (J^T J)^-1))`` with ``s^2 = sum r^2 / (m - n)`` at the
+   solution; a condition number of the column-scaled ``J^T J`` above
+   :data:`MAX_CONDITION` is a degenerate pose.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ._validate import check_type, finite, positive, real_array
+from .camera import Camera, FisheyeCamera
+from .errors import InputError, ShapeError
+from .sensor import DomeSensor
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+__all__ = ["GATE", "MAX_CONDITION", "Registration", "RegistrationError", "Spots", "detect_spots", "register"]
+
+#: Association gate: a cluster may match an element within this fraction of the element's distance to its
+#: nearest neighbour (pixels, predicted with the camera of the moment).
+GATE = 0.35
+#: Largest condition number of the column-scaled ``J^T J`` accepted at the solution.
+MAX_CONDITION = 1e10
+#: A cluster whose intensity-weighted RMS radius is below this fraction of the element ring's predicted one
+#: is not an element (a reflection or a hot pixel).
+MIN_RING_FRACTION = 0.6
+#: Most iterations of the least-squares fit (each costs a Jacobian by finite differences).
+MAX_ITERATIONS = 60
+#: Prior standard deviation of the per-element position offsets (mm), when they are fitted.
+OFFSET_PRIOR_MM = 0.2
+
+
+class RegistrationError(InputError):
+    """The frames cannot pin the model down; the message says what to add.
+
+    Too few spots or elements, an ambiguous association, a degenerate pose.
+    """
+
+
+# ----------------------------------------------------------------------------- spots
+@dataclass(frozen=True)
+class Spots:
+    """Bright spots of one frame over its no-load frame (connected components of ``frame - noload``).
+
+    Attributes
+    ----------
+    centroid : (M, 2) ndarray
+        Intensity-weighted centroids ``(row, col)`` of the spots (pixels).
+    energy : (M,) ndarray
+        Summed grey value over the no-load frame of each spot's pixels.
+    n_pixels : (M,) ndarray of int
+        Pixels above the threshold per spot.
+    labels : (H, W) ndarray of int32
+        Component labels: 0 background, ``i + 1`` spot ``i``.
+    noise_sigma : float
+        Robust noise estimate of ``frame - noload`` (grey levels).
+    threshold : float
+        The threshold used (grey levels over the no-load frame).
+    """
+
+    centroid: np.ndarray
+    energy: np.ndarray
+    n_pixels: np.ndarray
+    labels: np.ndarray = field(repr=False)
+    noise_sigma: float
+    threshold: float
+
+    def as_dict(self) -> dict:
+        """Per-spot table: ``spot, row, col, energy, n_pixels``."""
+        return {"spot": np.arange(len(self.energy)), "row": self.centroid[:, 0], "col": self.centroid[:, 1],
+                "energy": self.energy, "n_pixels": self.n_pixels}
+
+
+def _image(frame, name: str) -> np.ndarray:
+    arr = real_array(frame, name)
+    if arr.ndim != 2:
+        raise ShapeError(f"{name} must be a grey image (H, W), got shape {arr.shape}")
+    return finite(arr, name).astype(np.float64)
+
+
+def _difference(frame, noload, name: str) -> np.ndarray:
+    f, b = _image(frame, name), _image(noload, "noload")
+    if f.shape != b.shape:
+        raise ShapeError(f"{name} must have the no-load frame's shape {b.shape}, got {f.shape}")
+    return f - b
+
+
+def _noise_sigma(diff: np.ndarray) -> float:
+    """Robust noise sigma of ``diff``: 1.4826 x its median absolute deviation, at least 1e-3 grey levels.
+
+    Where that is 0 (quantised, nearly noiseless frames): the RMS deviation of
+    the 90 % of pixels nearest the median.
+    """
+    med = float(np.median(diff))
+    dev = np.abs(diff - med)
+    s = 1.4826 * float(np.median(dev))
+    if s == 0.0:
+        core = dev[dev <= np.percentile(dev, 90)]
+        s = float(np.sqrt(np.mean(core ** 2))) if core.size else 0.0
+    return max(s, 1e-3)
+
+
+def _spots(diff: np.ndarray, k: float, min_pixels: int) -> Spots:
+    import cv2
+
+    sigma = _noise_sigma(diff)
+    thr = k * sigma + float(np.median(diff))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((diff > thr).astype(np.uint8), connectivity=8,
+                                                           ltype=cv2.CV_32S)
+    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_pixels) + 1
+    remap = np.zeros(n, np.int32)
+    remap[keep] = np.arange(1, keep.size + 1)
+    labels = remap[labels]
+    m = keep.size
+    flat = labels.ravel()
+    w = np.where(flat > 0, diff.ravel(), 0.0)
+    rows, cols = np.divmod(np.arange(flat.size), diff.shape[1])
+    energy = np.bincount(flat, weights=w, minlength=m + 1)[1:]
+    cen = np.stack([np.bincount(flat, weights=w * rows, minlength=m + 1)[1:],
+                    np.bincount(flat, weights=w * cols, minlength=m + 1)[1:]], axis=-1)
+    cen = cen / np.maximum(energy, 1e-300)[:, None]
+    return Spots(centroid=cen, energy=energy, n_pixels=stats[keep, cv2.CC_STAT_AREA].astype(np.int64),
+                 labels=labels, noise_sigma=sigma, threshold=thr)
+
+
+def detect_spots(frame, noload, *, k: float = 5.0, min_pixels: int = 2) -> Spots:
+    """Find the bright spots of ``frame`` over its no-load frame.
+
+    Parameters
+    ----------
+    frame, noload : (H, W) array_like
+        Grey frames of the same shape (any real dtype; sums in float64).
+    k : float
+        Threshold in robust noise sigmas over the median difference, default 5.
+    min_pixels : int
+        Smallest spot kept (pixels above the threshold), default 2: single hot
+        pixels are dropped.
+
+    Returns
+    -------
+    Spots
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> base = rng.normal(20.0, 2.0, (40, 40))
+    >>> r, c = np.mgrid[0:40, 0:40]
+    >>> frame = base + 100.0 * np.exp(-((r - 10.3) ** 2 + (c - 25.6) ** 2) / 2.0)
+    >>> np.round(detect_spots(frame, base).centroid, 1).tolist()
+    [[10.3, 25.6]]
+    """
+    k = positive(k, "k")
+    if isinstance(min_pixels, bool) or not isinstance(min_pixels, (int, np.integer)) or min_pixels < 1:
+        raise InputError(f"min_pixels must be an integer >= 1, got {min_pixels!r}")
+    return _spots(_difference(frame, noload, "frame"), k, int(min_pixels))
+
+
+# ----------------------------------------------------------------------------- the model's predictions
+def _opencv_camera(camera: Camera) -> Camera:
+    """An OpenCV-model camera: the default equidistant camera becomes the equal OpenCV fisheye."""
+    if isinstance(camera, FisheyeCamera):
+        from .camera_models import OpenCVFisheyeCamera
+
+        cy, cx = camera.center
+        return OpenCVFisheyeCamera(camera.width, camera.height, fx=camera.focal_px, fy=camera.focal_px, cx=cx,
+                                   cy=cy, dist=(0.0, 0.0, 0.0, 0.0), tvec=(0.0, 0.0, -camera.z))
+    if not hasattr(camera, "fx"):
+        raise InputError(f"camera: registration fits OpenCV-style cameras (fx, fy, cx, cy, rvec, tvec), got a "
+                         f"{type(camera).__name__}")
+    return camera
+
+
+def _with(camera: Camera, **changes) -> Camera:
+    """``dataclasses.replace`` that keeps the distortion's cached range (it depends only on ``dist``)."""
+    new = replace(camera, **changes)
+    for name in ("max_radius", "max_angle"):
+        if name in camera.__dict__ and "dist" not in changes:
+            new.__dict__[name] = camera.__dict__[name]
+    return new
+
+
+def _cone_points(sensor: DomeSensor, elements: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
+    """(n, K, 3) cone patch centres of a pure normal press on ``elements``, each moved by ``offsets`` (mm)."""
+    from .contact import contact_patches
+
+    forces = np.zeros((sensor.n_elements, 3))
+    forces[:, 2] = 1.0
+    centres = contact_patches(sensor, forces).centers[elements]
+    if offsets is None:
+        return centres
+    el = np.broadcast_to(elements[:, None], centres.shape[:2])
+    return sensor.dome_point(el, sensor.tangent_offset(el, centres) + offsets[:, None, :])
+
+
+def _predict(sensor: DomeSensor, camera: Camera, elements: np.ndarray,
+             offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted cluster centroids (n, 2) and ring RMS radii (n,) in pixels; NaN where a cone is not seen."""
+    from .dome_optics import pixel_from_dome
+
+    px = pixel_from_dome(_cone_points(sensor, elements, offsets), sensor=sensor, camera=camera, outside="nan")
+    cen = px.mean(axis=1)
+    rms = np.sqrt(np.mean(np.sum((px - cen[:, None, :]) ** 2, axis=-1), axis=1))
+    return cen, rms
+
+
+def _spacing(cen: np.ndarray) -> np.ndarray:
+    """Each predicted element's pixel distance to its nearest predicted neighbour (inf where alone)."""
+    d = np.linalg.norm(cen[:, None, :] - cen[None, :, :], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    d[~np.isfinite(d)] = np.inf
+    return d.min(axis=1)
+
+
+# ----------------------------------------------------------------------------- clusters
+def _clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera: Camera) -> dict:
+    """Spots linked into element candidates on the dome (nominal camera); their centroids, energies, radii."""
+    import cv2
+    from scipy.sparse.csgraph import connected_components
+
+    from .dome_optics import dome_from_pixel
+
+    m = len(spots.energy)
+    pts = (dome_from_pixel(spots.centroid, sensor=sensor, camera=camera, outside="nan") if m
+           else np.zeros((0, 3)))
+    ok = np.isfinite(pts[:, 0]) & (spots.energy > 0)
+    link = 2.0 * sensor.cone_circle_radius
+    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+    adj = (d <= link) & ok[:, None] & ok[None, :]
+    _, comp = connected_components(adj, directed=False) if m else (0, np.zeros(0, int))
+    groups = [np.flatnonzero((comp == c) & ok) for c in np.unique(comp[ok])] if m else []
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    h, w = diff.shape
+    out = {"centroid": [], "energy": [], "rms": [], "n_spots": []}
+    for g in groups:
+        mask = np.isin(spots.labels, g + 1)
+        rr, cc = np.nonzero(mask)
+        r0, r1, c0, c1 = max(rr.min() - 3, 0), min(rr.max() + 4, h), max(cc.min() - 3, 0), min(cc.max() + 4, w)
+        sub = cv2.dilate(mask[r0:r1, c0:c1].astype(np.uint8), kernel).astype(bool)
+        wts = np.where(sub, diff[r0:r1, c0:c1], 0.0)
+        e = wts.sum()
+        if not e > 0:
+            continue
+        gr, gc = np.mgrid[r0:r1, c0:c1]
+        cen = np.array([(wts * gr).sum(), (wts * gc).sum()]) / e
+        wp = np.maximum(wts, 0.0)
+        rms = math.sqrt(((gr - cen[0]) ** 2 + (gc - cen[1]) ** 2)[sub] @ wp[sub] / max(wp.sum(), 1e-300))
+        out["centroid"].append(cen)
+        out["energy"].append(e)
+        out["rms"].append(rms)
+        out["n_spots"].append(g.size)
+    return {"centroid": np.array(out["centroid"]).reshape(-1, 2), "energy": np.array(out["energy"]),
+            "rms": np.array(out["rms"]), "n_spots": np.array(out["n_spots"], dtype=np.int64)}
+
+
+def _vote_shift(clusters: list[np.ndarray], pred: np.ndarray, gate: np.ndarray, search: float) -> np.ndarray:
+    """The image shift (measured - predicted) most clusters agree with; RegistrationError on a tie."""
+    allc = np.concatenate(clusters) if clusters else np.zeros((0, 2))
+    good = np.isfinite(pred[:, 0])
+    p, g = pred[good], gate[good]
+    cand = (allc[:, None, :] - p[None, :, :]).reshape(-1, 2)
+    cand = np.concatenate([np.zeros((1, 2)), cand[np.linalg.norm(cand, axis=-1) <= search]])
+
+    def score(s):
+        d = np.linalg.norm((allc - s)[:, None, :] - p[None, :, :], axis=-1)
+        j = d.argmin(axis=1)
+        hit = d[np.arange(len(allc)), j] <= g[j]
+        return int(hit.sum()), hit, j
+
+    counts = np.array([score(s)[0] for s in cand])
+    order = np.lexsort((np.linalg.norm(cand, axis=-1), -counts))
+    best = cand[order[0]]
+    n, hit, j = score(best)
+    if n == 0:
+        return np.zeros(2)
+    for o in order[1:]:
+        if counts[o] < n:
+            break
+        if np.linalg.norm(cand[o] - best) > 2.0 * np.median(g):
+            raise RegistrationError(
+                f"ambiguous association: shifting the predicted elements by {np.round(best, 1).tolist()} px or "
+                f"by {np.round(cand[o], 1).tolist()} px explains the same {n} spot clusters; press more "
+                f"elements, spread over several rings and further from the apex, or give a camera closer to "
+                f"the real one")
+    return np.median(allc[hit] - p[j[hit]], axis=0)
+
+
+def _associate(cl: np.ndarray, pred: np.ndarray, gate: np.ndarray,
+               shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hungarian assignment of one frame's clusters to elements within the gates: (cluster, element) pairs."""
+    from scipy.optimize import linear_sum_assignment
+
+    if len(cl) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    d = np.linalg.norm((cl - shift)[:, None, :] - pred[None, :, :], axis=-1)
+    inside = np.isfinite(d) & (d <= gate[None, :])
+    cost = np.where(inside, d, 1e9)
+    ri, ci = linear_sum_assignment(cost)
+    keep = inside[ri, ci]
+    return ri[keep], ci[keep]
+
+
+# ----------------------------------------------------------------------------- the fit
+class _Model:
+    """Parameter vector <-> (sensor, camera, offsets) and the residuals of observed cluster centroids."""
+
+    def __init__(self, sensor, camera, *, fit_intrinsics, fit_dome, fit_offsets, elements, prior_px):
+        self.sensor0, self.camera0 = sensor, camera
+        self.names = ["rvec_x", "rvec_y", "rvec_z", "x_mm", "y_mm", "z_mm"]
+        x0 = list(camera.rvec) + list(camera.position)
+        if fit_intrinsics:
+            self.names += ["fx", "fy", "cx", "cy"]
+            x0 += [camera.fx, camera.fy, camera.cx, camera.cy]
+        if fit_dome:
+            self.names += ["outer_radius_mm"]
+            x0 += [sensor.outer_radius]
+        self.offset_elements = np.unique(elements) if fit_offsets else np.zeros(0, int)
+        for e in self.offset_elements:
+            self.names += [f"offset_{e}_x_mm", f"offset_{e}_y_mm"]
+        x0 += [0.0] * (2 * len(self.offset_elements))
+        self.x0 = np.array(x0)
+        self.fit_intrinsics, self.fit_dome = fit_intrinsics, fit_dome
+        self.prior_px = prior_px
+
+    def build(self, x: np.ndarray):
+        from .camera import rotation_from_rvec
+
+        rvec = x[:3]
+        tvec = -(rotation_from_rvec(rvec) @ x[3:6])
+        i = 6
+        kw = {"rvec": tuple(rvec), "tvec": tuple(tvec)}
+        if self.fit_intrinsics:
+            kw.update(fx=x[6], fy=x[7], cx=x[8], cy=x[9])
+            i = 10
+        sensor = self.sensor0
+        if self.fit_dome:
+            sensor = replace(sensor, outer_radius=float(x[i]))
+            i += 1
+        offsets = np.zeros((sensor.n_elements, 2))
+        offsets[self.offset_elements] = x[i:].reshape(-1, 2)
+        return sensor, _with(self.camera0, **kw), offsets
+
+    def residuals(self, x: np.ndarray, elements: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        sensor, camera, offsets = self.build(x)
+        if not np.linalg.norm(camera.position) < sensor.inner_radius:
+            return np.full(2 * len(elements) + 2 * len(self.offset_elements), 1e3)
+        pred, _ = _predict(sensor, camera, elements, offsets[elements])
+        r = np.nan_to_num(measured - pred, nan=1e3).ravel()
+        if len(self.offset_elements):
+            r = np.concatenate([r, self.prior_px * offsets[self.offset_elements].ravel() / OFFSET_PRIOR_MM])
+        return r
+
+
+def _fit(model: _Model, elements, measured, f_scale: float, x0=None):
+    from scipy.optimize import least_squares
+
+    return least_squares(model.residuals, model.x0 if x0 is None else x0, args=(elements, measured),
+                         loss="soft_l1", f_scale=f_scale, x_scale="jac", method="trf", xtol=1e-12, ftol=1e-12,
+                         gtol=1e-12, max_nfev=MAX_ITERATIONS)
+
+
+def _check_conditioning(jac: np.ndarray, names: list[str], n_elements: int) -> np.ndarray:
+    """``(J^T J)^-1`` of the column-scaled J, or RegistrationError naming the parameters it cannot pin down."""
+    norms = np.linalg.norm(jac, axis=0)
+    if np.any(norms == 0):
+        bad = [names[i] for i in np.flatnonzero(norms == 0)]
+        raise RegistrationError(f"degenerate pose: the spots do not depend on {bad}; press more elements, "
+                                f"spread over the rings and further from the apex (seen: {n_elements})")
+    js = jac / norms
+    jtj = js.T @ js
+    cond = float(np.linalg.cond(jtj))
+    if not cond <= MAX_CONDITION:
+        inflation = np.diag(np.linalg.pinv(jtj))
+        worst = [names[i] for i in np.argsort(-inflation)[:3]]
+        raise RegistrationError(
+            f"degenerate pose: the condition number of J^T J is {cond:.3g} (at most {MAX_CONDITION:.0e}): "
+            f"the frames cannot tell {', '.join(worst)} apart; press more elements ({n_elements} seen), spread "
+            f"over several rings and further from the apex, or fit fewer parameters")
+    return np.linalg.inv(jtj) / np.outer(norms, norms)
+
+
+def _fit_observations(sensor, camera, clusters, obs_f, obs_c, obs_e, *, fit_intrinsics, fit_dome, fit_offsets,
+                      f_scale) -> dict:
+    """Fit the model to associated clusters; observations far beyond the robust spread are dropped once."""
+    measured = np.array([clusters[f]["centroid"][c] for f, c in zip(obs_f, obs_c, strict=True)]).reshape(-1, 2)
+    keep = np.ones(len(obs_e), bool)
+    for _ in range(2):
+        model = _Model(sensor, camera, fit_intrinsics=fit_intrinsics, fit_dome=fit_dome,
+                       fit_offsets=fit_offsets, elements=obs_e[keep], prior_px=f_scale)
+        res = _fit(model, obs_e[keep], measured[keep], f_scale)
+        rn = np.linalg.norm(res.fun[:2 * int(keep.sum())].reshape(-1, 2), axis=1)
+        bad = rn > max(5.0 * 1.4826 * float(np.median(rn)), 2.0 * f_scale)
+        if not bad.any():
+            break
+        keep[np.flatnonzero(keep)[bad]] = False
+    return {"model": model, "res": res, "element": obs_e[keep], "frame": obs_f[keep]}
+
+
+# ----------------------------------------------------------------------------- the result
+@dataclass(frozen=True)
+class Registration:
+    """A sensor and camera fitted to spots in real frames, with how well they fit.
+
+    Attributes
+    ----------
+    sensor : DomeSensor
+        The sensor (its ``outer_radius`` fitted with ``fit_dome``).
+    camera : Camera
+        The fitted camera (an OpenCV model; :meth:`Camera.to_dict` for files).
+    rms_px : float
+        Reprojection RMS of the cluster centroids (pixels, both axes pooled: ``sqrt(mean(dr^2 + dc^2) / 2)``).
+    std_errors : dict
+        Standard error of every fitted parameter: ``rvec_x..z`` (rad), the
+        camera centre ``x_mm, y_mm, z_mm`` (dome frame), ``fx, fy, cx, cy``
+        (pixels), ``outer_radius_mm``, ``offset_E_x_mm`` / ``_y_mm``.
+    unseen : tuple of int
+        Elements no frame showed (or whose clusters were rejected).
+    frames : tuple of dict
+        Per pressed frame: ``elements`` found, ``rejected`` clusters (outside every gate, not ring-shaped or
+        outliers of the fit), ``spots`` detected, ``noise_sigma``.
+    element : (n,) ndarray of int
+        The element of each observation (one per frame and element seen).
+    frame : (n,) ndarray of int
+        The frame index of each observation.
+    residuals_px : (n, 2) ndarray
+        Measured minus predicted cluster centroid ``(row, col)`` (pixels).
+    element_offsets : (N, 2) ndarray
+        Fitted tangent offsets of the elements (mm, element-local x, y); zeros unless ``fit_offsets``.
+    """
+
+    sensor: DomeSensor
+    camera: Camera
+    rms_px: float
+    std_errors: dict
+    unseen: tuple
+    frames: tuple
+    element: np.ndarray = field(repr=False)
+    frame: np.ndarray = field(repr=False)
+    residuals_px: np.ndarray = field(repr=False)
+    element_offsets: np.ndarray = field(repr=False)
+
+    def as_dict(self) -> dict:
+        """Per-observation table: ``frame, element, residual_row_px, residual_col_px``."""
+        return {"frame": self.frame, "element": self.element, "residual_row_px": self.residuals_px[:, 0],
+                "residual_col_px": self.residuals_px[:, 1]}
+
+    def to_dict(self) -> dict:
+        """The setup document ``{"sensor", "camera", "registration"}`` for ``optitact process --setup``."""
+        return {"sensor": self.sensor.to_dict(), "camera": self.camera.to_dict(),
+                "registration": {"rms_px": self.rms_px, "std_errors": dict(self.std_errors),
+                                 "unseen": list(self.unseen), "frames": list(self.frames),
+                                 "element_offsets_mm": {
+                                     str(e): self.element_offsets[e].tolist()
+                                     for e in np.flatnonzero(self.element_offsets.any(axis=1))}}}
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write :meth:`to_dict` as JSON (atomically); returns the path."""
+        from .io import atomic_write_text
+
+        return atomic_write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
+
+
+def _frames(pressed, noload_shape) -> list[np.ndarray]:
+    if isinstance(pressed, np.ndarray) and pressed.ndim == 3:
+        pressed = list(pressed)
+    if isinstance(pressed, np.ndarray) or not hasattr(pressed, "__len__"):
+        raise ShapeError(f"pressed must be a sequence of frames (or a (T, H, W) stack), got "
+                         f"{getattr(pressed, 'shape', type(pressed).__name__)}")
+    frames = [_image(f, f"pressed[{i}]") for i, f in enumerate(pressed)]
+    if not frames:
+        raise RegistrationError("no pressed frames: give at least one frame in which elements are pressed")
+    for i, f in enumerate(frames):
+        if f.shape != noload_shape:
+            raise ShapeError(f"pressed[{i}] must have the no-load frame's shape {noload_shape}, got {f.shape}")
+    return frames
+
+
+def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSensor | None = None,
+             fit_intrinsics: bool = False, fit_dome: bool = False, fit_offsets: bool = False, k: float = 5.0,
+             f_scale: float = 0.5, min_elements: int | None = None) -> Registration:
+    """Fit the camera's pose (and optionally its intrinsics and the dome) to spots of pressed elements.
+
+    Parameters
+    ----------
+    noload : (H, W) array_like
+        A frame of the unloaded sensor (its preload spots, if any, are
+        subtracted); a (T, H, W) stack is averaged.
+    pressed : sequence of (H, W) array_like, or (T, H, W)
+        Frames in which elements are pressed straight down (several per frame
+        is best: 5 to 8 spread over the rings).
+    camera : Camera, optional
+        The nominal camera: its intrinsics and distortion (e.g. from
+        :func:`optitact.read_opencv_calibration`) and a starting pose. Default:
+        the default equidistant camera of the frames' size. A
+        :class:`FisheyeCamera` is fitted as the equal
+        :class:`optitact.OpenCVFisheyeCamera`.
+    sensor : DomeSensor, optional
+        Default :meth:`DomeSensor.default`.
+    fit_intrinsics : bool
+        Also fit ``fx, fy, cx, cy`` (the distortion stays as given).
+    fit_dome : bool
+        Also fit the dome's outer radius (the shell thickness stays).
+    fit_offsets : bool
+        Also fit a tangent position offset per element seen, with a Gaussian
+        prior of :data:`OFFSET_PRIOR_MM` (the manufacturing tolerance).
+    k : float
+        Spot threshold in robust noise sigmas (see :func:`detect_spots`).
+    f_scale : float
+        Soft-L1 loss scale (pixels): residuals beyond it count less.
+    min_elements : int, optional
+        Fewest distinct elements accepted; default ``(parameters + 4) / 2``
+        rounded up (5 for the pose alone, 7 with the intrinsics).
+
+    Returns
+    -------
+    Registration
+
+    Raises
+    ------
+    RegistrationError
+        When the frames cannot pin the model down: too few spots or elements
+        (naming how many it found and needs), an ambiguous association, a
+        degenerate pose, a fit that does not converge.
+    ShapeError
+        For frames that are not (H, W) images of one shape, or of another
+        size than the camera's.
+    """
+    sensor = DomeSensor.default() if sensor is None else check_type(sensor, DomeSensor, "sensor")
+    base = real_array(noload, "noload")
+    if base.ndim == 3:
+        base = base.mean(axis=0)
+    base = _image(base, "noload")
+    frames = _frames(pressed, base.shape)
+    h, w = base.shape
+    camera = FisheyeCamera(width=w, height=h) if camera is None else check_type(camera, Camera, "camera")
+    if camera.shape != (h, w):
+        raise ShapeError(f"the frames are {w}x{h} but the camera (intrinsics) is for {camera.width}x"
+                         f"{camera.height} frames; give intrinsics calibrated at the frames' size")
+    for name, v in (("fit_intrinsics", fit_intrinsics), ("fit_dome", fit_dome), ("fit_offsets", fit_offsets)):
+        if not isinstance(v, (bool, np.bool_)):
+            raise TypeError(f"{name} must be True or False, got {type(v).__name__}")
+    k, f_scale = positive(k, "k"), positive(f_scale, "f_scale")
+    camera = _opencv_camera(camera)
+    n_par = 6 + 4 * bool(fit_intrinsics) + bool(fit_dome)
+    need = max(4, math.ceil((n_par + 4) / 2)) if min_elements is None else int(min_elements)
+
+    # spots and clusters, per frame, seen with the nominal camera
+    everything = np.arange(sensor.n_elements)
+    pred0, ring0 = _predict(sensor, camera, everything)
+    gate0 = GATE * _spacing(pred0)
+    diffs = [f - base for f in frames]
+    spots = [_spots(d, k, 2) for d in diffs]
+    clusters = [_clusters(d, s, sensor, camera) for d, s in zip(diffs, spots, strict=True)]
+    rejected = [0] * len(frames)
+    for i, cl in enumerate(clusters):  # compact blobs are no element's ring
+        if len(cl["rms"]) == 0:
+            continue
+        near = np.nanargmin(np.linalg.norm(cl["centroid"][:, None, :] - pred0[None], axis=-1), axis=1)
+        ring = cl["rms"] >= MIN_RING_FRACTION * ring0[near]
+        rejected[i] += int((~ring).sum())
+        clusters[i] = {key: v[ring] for key, v in cl.items()}
+    n_clusters = sum(len(c["energy"]) for c in clusters)
+    if n_clusters < need:
+        raise RegistrationError(
+            f"too few spots: {sum(len(s.energy) for s in spots)} spots in {len(frames)} pressed frame(s) form "
+            f"{n_clusters} element-shaped cluster(s), and registration needs at least {need} elements; press "
+            f"more elements (5 to 8 per frame, spread over the rings and further from the apex), harder, or "
+            f"lower k ({k:g})")
+
+    # association: one common shift, then per frame the Hungarian assignment within the gates
+    search = 0.15 * min(h, w)
+    shift = _vote_shift([c["centroid"] for c in clusters], pred0, gate0, search)
+    pred, gate, cur, fit = pred0, gate0, None, None
+    for _round in range(4):
+        obs_f, obs_c, obs_e = [], [], []
+        for i, cl in enumerate(clusters):
+            ci, ei = _associate(cl["centroid"], pred, gate, shift)
+            obs_f += [i] * len(ci)
+            obs_c += list(ci)
+            obs_e += list(ei)
+        n_el = np.unique(obs_e).size
+        if n_el < need:
+            raise RegistrationError(
+                f"too few elements: {n_el} distinct element(s) could be matched in {len(frames)} pressed "
+                f"frame(s) ({n_clusters} cluster(s) found), and registration needs at least {need}; press more "
+                f"elements, spread over the rings and further from the apex")
+        key = (tuple(obs_f), tuple(obs_c), tuple(obs_e))
+        if key == cur:
+            break
+        cur = key
+        fit = _fit_observations(sensor, camera, clusters, np.array(obs_f), np.array(obs_c), np.array(obs_e),
+                                fit_intrinsics=bool(fit_intrinsics), fit_dome=bool(fit_dome),
+                                fit_offsets=bool(fit_offsets), f_scale=f_scale)
+        fs, fc, _ = fit["model"].build(fit["res"].x)
+        pred, _ = _predict(fs, fc, everything)
+        gate, shift = GATE * _spacing(pred), np.zeros(2)
+    model, res, elements, obs_f = fit["model"], fit["res"], fit["element"], fit["frame"]
+    n_el = np.unique(elements).size
+    if n_el < need:
+        raise RegistrationError(f"too few elements: {n_el} distinct element(s) fit without outliers, and "
+                                f"registration needs at least {need}; press more elements, spread over the "
+                                f"rings")
+    fit_sensor, fit_camera, offsets = model.build(res.x)
+    m, n = res.fun.size, res.x.size
+    cov = _check_conditioning(res.jac, model.names, n_el)
+    if not res.success:
+        raise RegistrationError(f"the fit did not converge ({res.message}); press more elements, spread over "
+                                f"the rings and further from the apex")
+    r = res.fun[:2 * len(elements)].reshape(-1, 2)
+    dof = max(m - n, 1)
+    s2 = float(np.sum(res.fun ** 2)) / dof
+    std = np.sqrt(np.maximum(np.diag(cov) * s2, 0.0))
+    seen = set(int(e) for e in elements)
+    per_frame = []
+    for i in range(len(frames)):
+        mine = np.asarray(obs_f) == i
+        per_frame.append({"elements": sorted(int(e) for e in elements[mine]), "rejected": int(rejected[i]),
+                          "spots": int(len(spots[i].energy)), "noise_sigma": spots[i].noise_sigma})
+    for i, cl in enumerate(clusters):  # clusters matched to no element
+        per_frame[i]["rejected"] += int(len(cl["energy"]) - len(per_frame[i]["elements"]))
+    return Registration(
+        sensor=fit_sensor, camera=fit_camera, rms_px=float(np.sqrt(np.mean(r ** 2))),
+        std_errors={name: float(v) for name, v in zip(model.names, std, strict=True)},
+        unseen=tuple(int(e) for e in everything if e not in seen), frames=tuple(per_frame),
+        element=elements, frame=np.asarray(obs_f, dtype=np.int64), residuals_px=r, element_offsets=offsets)

@@ -1,0 +1,271 @@
+"""Registration (issue 18): spots -> elements -> the camera's pose (and intrinsics), on stand-in sensors.
+
+A stand-in is the default sensor seen by an OpenCV fisheye camera the package
+is not told about: 0.1-0.5 mm off the axis, 0.5-2 deg tilted, focal length
++-3 %, principal point +-8 px, Kannala-Brandt k1..k4. Its frames are drawn
+analytically: a Gaussian spot (sigma 1 px, 100 grey levels) at the projection
+(:func:`pixel_from_dome`, through the dome) of every cone patch centre of a
+pressed element, on a 20-level background with 2 grey levels of noise, cast
+to uint8. The truth is the stand-in's camera.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import optitact
+from optitact import DomeSensor, OpenCVFisheyeCamera, contact_patches, pixel_from_dome
+from optitact.camera import rotation_from_rvec
+from optitact.camera_models import pose_from_position
+from optitact.errors import ShapeError
+from optitact.register import Registration, RegistrationError, detect_spots, register
+
+SENSOR = DomeSensor.default()
+W, H = 320, 240
+F0 = (min(W, H) / 2) / np.deg2rad(70)  # the default equidistant camera's focal length (px/rad)
+NOMINAL = OpenCVFisheyeCamera(W, H, fx=F0, fy=F0, cx=(W - 1) / 2, cy=(H - 1) / 2, dist=(0, 0, 0, 0),
+                              tvec=(0, 0, 5))
+#: Elements pressed per frame: 22 of the 41, every ring.
+PRESSES = ([0, 2, 5, 11, 14, 27, 33], [1, 4, 7, 9, 17, 21, 30, 37], [3, 6, 13, 19, 25, 29, 40])
+N_STANDINS = 10
+
+
+def standin(seed: int) -> OpenCVFisheyeCamera:
+    """A stand-in sensor's true camera."""
+    rng = np.random.default_rng(seed)
+    off, a = rng.uniform(0.1, 0.5), rng.uniform(0, 2 * np.pi)
+    tilt, b = np.deg2rad(rng.uniform(0.5, 2.0)), rng.uniform(0, 2 * np.pi)
+    rvec = (tilt * np.cos(b), tilt * np.sin(b), rng.uniform(-0.01, 0.01))
+    fx = F0 * (1 + rng.uniform(-0.03, 0.03))
+    dist = (rng.uniform(-0.05, 0.05), rng.uniform(-0.02, 0.02), rng.uniform(-0.005, 0.005),
+            rng.uniform(-0.002, 0.002))
+    return OpenCVFisheyeCamera(W, H, fx=fx, fy=fx * (1 + rng.uniform(-0.003, 0.003)),
+                               cx=(W - 1) / 2 + rng.uniform(-8, 8), cy=(H - 1) / 2 + rng.uniform(-8, 8),
+                               dist=dist,
+                               **pose_from_position((off * np.cos(a), off * np.sin(a), -5.0), rvec))
+
+
+def _spot(img: np.ndarray, r: float, c: float, amp: float = 100.0, sigma: float = 1.0) -> None:
+    r0, c0 = int(round(r)), int(round(c))
+    rr, cc = np.mgrid[max(r0 - 6, 0):min(r0 + 7, H), max(c0 - 6, 0):min(c0 + 7, W)]
+    img[rr, cc] += amp * np.exp(-((rr - r) ** 2 + (cc - c) ** 2) / (2 * sigma * sigma))
+
+
+def frames(camera, seed: int, presses=PRESSES, extra=None, drop=None):
+    """No-load frame and pressed frames (uint8); ``extra = (frame, (row, col))`` adds a reflection,
+    ``drop = (frame, element)`` leaves a pressed element out."""
+    rng = np.random.default_rng(seed + 1000)
+    forces = np.zeros((SENSOR.n_elements, 3))
+    forces[:, 2] = 1.0
+    px = pixel_from_dome(contact_patches(SENSOR, forces).centers, sensor=SENSOR, camera=camera)
+
+    def noisy(img):
+        return np.clip(np.round(img + rng.normal(0.0, 2.0, img.shape)), 0, 255).astype(np.uint8)
+
+    out = []
+    for i, els in enumerate(presses):
+        img = np.full((H, W), 20.0)
+        for e in els:
+            if drop != (i, e):
+                for r, c in px[e]:
+                    _spot(img, r, c)
+        if extra is not None and extra[0] == i:
+            _spot(img, *extra[1], amp=150.0, sigma=1.5)
+        out.append(noisy(img))
+    return noisy(np.full((H, W), 20.0)), out
+
+
+def pose_error(fit, true) -> tuple[float, float]:
+    """Camera centre error (mm) and rotation error (deg)."""
+    rel = rotation_from_rvec(fit.rvec) @ rotation_from_rvec(true.rvec).T
+    angle = np.degrees(np.arccos(np.clip((np.trace(rel) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(fit.position - true.position)), float(angle)
+
+
+@pytest.fixture(scope="module")
+def standins():
+    """(true camera, no-load frame, pressed frames) of the stand-ins."""
+    out = []
+    for seed in range(N_STANDINS):
+        cam = standin(seed)
+        out.append((cam, *frames(cam, seed)))
+    return out
+
+
+# ----------------------------------------------------------------------------- spots
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_detect_spots_finds_analytic_spots(dtype):
+    rng = np.random.default_rng(3)
+    truth = np.array([[30.3, 40.7], [80.55, 120.2], [150.0, 60.45]])
+    img = np.full((H, W), 20.0)
+    for r, c in truth:
+        _spot(img, r, c)
+    base = np.clip(np.round(np.full((H, W), 20.0) + rng.normal(0, 2, (H, W))), 0, 255).astype(dtype)
+    frame = np.clip(np.round(img + rng.normal(0, 2, (H, W))), 0, 255).astype(dtype)
+    spots = detect_spots(frame, base)
+    order = np.argsort(spots.centroid[:, 0])
+    np.testing.assert_allclose(spots.centroid[order], truth, rtol=0, atol=0.1)
+    total = 2 * np.pi * 100.0  # a spot's energy; the pixels above 5 sigma (r < 2 px) hold 86 % of it
+    assert np.all((0.8 * total < spots.energy) & (spots.energy < total)), spots.energy
+    assert 2.0 < spots.noise_sigma < 3.6  # the difference of two frames of 2 grey levels of noise: 2.83
+    assert detect_spots(base, base).centroid.shape == (0, 2)
+
+
+# ----------------------------------------------------------------------------- pose
+def test_register_recovers_the_pose_of_every_standin(standins):
+    """Intrinsics known (OpenCV's checkerboard calibration), the pose nominal: <= 0.05 mm, 0.1 deg, 0.1 px."""
+    worst = np.zeros(3)
+    for true, noload, pressed in standins:
+        start = replace(NOMINAL, fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, dist=true.dist)
+        reg = register(noload, pressed, camera=start)
+        assert isinstance(reg, Registration)
+        dpos, dang = pose_error(reg.camera, true)
+        worst = np.maximum(worst, [dpos, dang, reg.rms_px])
+        assert sorted(reg.unseen) == sorted(set(range(41)) - set(sum(PRESSES, [])))
+        assert [f["elements"] for f in reg.frames] == [sorted(p) for p in PRESSES]
+        # the reported standard errors describe the actual errors
+        assert np.linalg.norm(reg.camera.position - true.position) <= 5 * np.linalg.norm(
+            [reg.std_errors[k] for k in ("x_mm", "y_mm", "z_mm")])
+    assert worst[0] <= 0.05 and worst[1] <= 0.1 and worst[2] <= 0.1, worst
+
+
+def test_register_fits_the_intrinsics(standins):
+    """From nominal intrinsics (distortion known): fx, cx, cy, camera height within 4 standard errors."""
+    for true, noload, pressed in standins[:4]:
+        reg = register(noload, pressed, camera=replace(NOMINAL, dist=true.dist), fit_intrinsics=True)
+        assert reg.rms_px <= 0.1
+        se = reg.std_errors
+        for name, fitted, truth in (("fx", reg.camera.fx, true.fx), ("fy", reg.camera.fy, true.fy),
+                                    ("cx", reg.camera.cx, true.cx), ("cy", reg.camera.cy, true.cy),
+                                    ("z_mm", reg.camera.position[2], true.position[2])):
+            assert abs(fitted - truth) <= 4 * se[name] + 1e-3, (name, fitted, truth, se[name])
+        assert abs(reg.camera.fx / true.fx - 1) < 0.03
+        assert np.hypot(reg.camera.cx - true.cx, reg.camera.cy - true.cy) < 4.0
+
+
+def test_default_equidistant_camera_is_fitted_as_opencv_fisheye():
+    true = replace(NOMINAL, **pose_from_position((0.3, -0.2, -5.0), (0.02, -0.01, 0.0)))
+    noload, pressed = frames(true, 7)
+    reg = optitact.register(noload, pressed)  # the default camera of the frames' size
+    assert isinstance(reg.camera, OpenCVFisheyeCamera)
+    dpos, dang = pose_error(reg.camera, true)
+    assert dpos <= 0.05 and dang <= 0.1 and reg.rms_px <= 0.1
+
+
+def test_reflection_and_missing_element_still_register(standins):
+    true, _, _ = standins[1]
+    # a bright reflection half-way between two elements of ring 2, in frame 0; element 9 missing from frame 1
+    mid = pixel_from_dome(SENSOR.outer_radius * np.array([np.sin(np.pi / 4) * np.cos(np.pi / 16),
+                                                          np.sin(np.pi / 4) * np.sin(np.pi / 16),
+                                                          np.cos(np.pi / 4)]), sensor=SENSOR, camera=true)
+    noload, pressed = frames(true, 1, extra=(0, tuple(mid)), drop=(1, 9))
+    start = replace(NOMINAL, fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, dist=true.dist)
+    reg = register(noload, pressed, camera=start)
+    dpos, dang = pose_error(reg.camera, true)
+    assert dpos <= 0.05 and dang <= 0.1 and reg.rms_px <= 0.1
+    assert reg.frames[0]["elements"] == sorted(PRESSES[0]) and reg.frames[0]["rejected"] == 1
+    assert 9 not in reg.frames[1]["elements"] and 9 in reg.unseen
+
+
+# ----------------------------------------------------------------------------- refusals
+def test_too_few_elements_are_refused(standins):
+    true, _, _ = standins[0]
+    noload, pressed = frames(true, 0, presses=([2, 11],))
+    with pytest.raises(RegistrationError, match=r"too few spots: .* 2 element-shaped cluster\(s\).* at least 5 "
+                                                r"elements; press more elements"):
+        register(noload, pressed, camera=NOMINAL)
+    with pytest.raises(RegistrationError, match="at least 7 elements"):
+        register(noload, pressed, camera=NOMINAL, fit_intrinsics=True)
+
+
+def test_a_ring_alone_cannot_tell_focal_length_from_height(standins):
+    true, _, _ = standins[0]
+    noload, pressed = frames(true, 0, presses=([1, 2, 3, 4, 5, 6, 7, 8],))
+    with pytest.raises(RegistrationError, match="degenerate pose: the condition number"):
+        register(noload, pressed, camera=replace(NOMINAL, dist=true.dist), fit_intrinsics=True, fit_dome=True)
+
+
+def test_bad_frames_are_refused(standins):
+    _, noload, pressed = standins[0]
+    with pytest.raises(ShapeError, match="the camera .* is for 640x480"):
+        register(noload, pressed, camera=replace(NOMINAL, width=640, height=480))
+    with pytest.raises(ShapeError, match=r"pressed\[1\] must have the no-load frame's shape"):
+        register(noload, [pressed[0], pressed[1][:-1]], camera=NOMINAL)
+    with pytest.raises(RegistrationError, match="no pressed frames"):
+        register(noload, [], camera=NOMINAL)
+    with pytest.raises(TypeError, match="fit_intrinsics must be True or False"):
+        register(noload, pressed, camera=NOMINAL, fit_intrinsics="yes")
+
+
+# ----------------------------------------------------------------------------- the command line
+def test_cli_writes_a_setup_that_process_reads(standins, tmp_path, capsys):
+    import cv2
+
+    from optitact.cli import main
+
+    true, noload, pressed = standins[2]
+    cv2.imwrite(str(tmp_path / "noload.png"), noload)
+    names = []
+    for i, f in enumerate(pressed):
+        names.append(str(tmp_path / f"pressed_{i}.png"))
+        cv2.imwrite(names[-1], f)
+    fs = cv2.FileStorage(str(tmp_path / "cam.yml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", W)
+    fs.write("image_height", H)
+    fs.write("camera_matrix", true.K)
+    fs.write("distortion_coefficients", true.D.reshape(1, 4))
+    fs.write("distortion_model", "fisheye")
+    fs.release()
+    setup = tmp_path / "setup.json"
+    assert main(["register", str(tmp_path / "noload.png"), *names, "--camera-intrinsics",
+                 str(tmp_path / "cam.yml"), "--out", str(setup)]) == 0
+    assert capsys.readouterr().out.strip() == str(setup)
+    doc = json.loads(setup.read_text())
+    assert set(doc) == {"sensor", "camera", "registration"}
+    assert doc["registration"]["rms_px"] <= 0.1 and len(doc["registration"]["frames"]) == 3
+    cam = optitact.camera_from_dict(doc["camera"])
+    dpos, dang = pose_error(cam, true)
+    assert dpos <= 0.05 and dang <= 0.1
+
+    out = tmp_path / "readings.csv"
+    assert main(["process", *names, "--baseline", str(tmp_path / "noload.png"), "--setup", str(setup),
+                 "--out", str(out)]) == 0
+    with out.open() as fh:
+        rows = list(csv.DictReader(fh))
+    for i, els in enumerate(PRESSES):
+        mine = [r for r in rows if int(r["frame"]) == i] if "frame" in rows[0] else rows[41 * i:41 * (i + 1)]
+        contact = {int(r["element"]) for r in mine if r["contact"] in ("1", "True", "true")}
+        assert contact == set(els)
+        # a pure normal press: the grey-value centroid lands on the element's centre
+        u = np.array([[float(r["ux"]), float(r["uy"])] for r in mine if int(r["element"]) in els])
+        assert np.abs(u).max() <= 0.05, u
+
+
+def test_cli_refuses_pinhole_without_intrinsics(standins, tmp_path, capsys):
+    import cv2
+
+    from optitact.cli import main
+
+    _, noload, pressed = standins[0]
+    cv2.imwrite(str(tmp_path / "n.png"), noload)
+    cv2.imwrite(str(tmp_path / "p.png"), pressed[0])
+    assert main(["register", str(tmp_path / "n.png"), str(tmp_path / "p.png"), "--model", "pinhole",
+                 "--out", str(tmp_path / "s.json")]) == 2
+    assert "--model pinhole needs --camera-intrinsics" in capsys.readouterr().err
+
+
+def test_element_offsets_fit_with_their_prior(standins):
+    """Per-element offsets (prior 0.2 mm) on a sensor built to the design: they stay near 0, the pose holds."""
+    true, noload, pressed = standins[3]
+    start = replace(NOMINAL, fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, dist=true.dist)
+    reg = register(noload, pressed, camera=start, fit_offsets=True)
+    dpos, dang = pose_error(reg.camera, true)
+    assert dpos <= 0.05 and dang <= 0.1 and reg.rms_px <= 0.1
+    assert np.abs(reg.element_offsets).max() <= 0.05
+    assert "offset_2_x_mm" in reg.std_errors and "offset_2_x_mm" not in {f"offset_{e}_x_mm" for e in reg.unseen}
+    assert json.loads(json.dumps(reg.to_dict()))["registration"]["element_offsets_mm"]
