@@ -58,10 +58,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ._validate import check_type, finite, positive, real_array
+from ._validate import check_type, positive, real_array
 from .camera import Camera, FisheyeCamera
 from .errors import InputError, ShapeError
 from .sensor import DomeSensor
+from .spots import Spots, detect_spots, grey_image, spots_in_difference
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -89,126 +90,6 @@ class RegistrationError(InputError):
     """
 
 
-# ----------------------------------------------------------------------------- spots
-@dataclass(frozen=True)
-class Spots:
-    """Bright spots of one frame over its no-load frame (connected components of ``frame - noload``).
-
-    Attributes
-    ----------
-    centroid : (M, 2) ndarray
-        Intensity-weighted centroids ``(row, col)`` of the spots (pixels).
-    energy : (M,) ndarray
-        Summed grey value over the no-load frame of each spot's pixels.
-    n_pixels : (M,) ndarray of int
-        Pixels above the threshold per spot.
-    labels : (H, W) ndarray of int32
-        Component labels: 0 background, ``i + 1`` spot ``i``.
-    noise_sigma : float
-        Robust noise estimate of ``frame - noload`` (grey levels).
-    threshold : float
-        The threshold used (grey levels over the no-load frame).
-    """
-
-    centroid: np.ndarray
-    energy: np.ndarray
-    n_pixels: np.ndarray
-    labels: np.ndarray = field(repr=False)
-    noise_sigma: float
-    threshold: float
-
-    def as_dict(self) -> dict:
-        """Per-spot table: ``spot, row, col, energy, n_pixels``."""
-        return {"spot": np.arange(len(self.energy)), "row": self.centroid[:, 0], "col": self.centroid[:, 1],
-                "energy": self.energy, "n_pixels": self.n_pixels}
-
-
-def _image(frame, name: str) -> np.ndarray:
-    arr = real_array(frame, name)
-    if arr.ndim != 2:
-        raise ShapeError(f"{name} must be a grey image (H, W), got shape {arr.shape}")
-    return finite(arr, name).astype(np.float64)
-
-
-def _difference(frame, noload, name: str) -> np.ndarray:
-    f, b = _image(frame, name), _image(noload, "noload")
-    if f.shape != b.shape:
-        raise ShapeError(f"{name} must have the no-load frame's shape {b.shape}, got {f.shape}")
-    return f - b
-
-
-def _noise_sigma(diff: np.ndarray) -> float:
-    """Robust noise sigma of ``diff``: 1.4826 x its median absolute deviation, at least 1e-3 grey levels.
-
-    Where that is 0 (quantised, nearly noiseless frames): the RMS deviation of
-    the 90 % of pixels nearest the median.
-    """
-    med = float(np.median(diff))
-    dev = np.abs(diff - med)
-    s = 1.4826 * float(np.median(dev))
-    if s == 0.0:
-        core = dev[dev <= np.percentile(dev, 90)]
-        s = float(np.sqrt(np.mean(core ** 2))) if core.size else 0.0
-    return max(s, 1e-3)
-
-
-def _spots(diff: np.ndarray, k: float, min_pixels: int) -> Spots:
-    import cv2
-
-    sigma = _noise_sigma(diff)
-    thr = k * sigma + float(np.median(diff))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats((diff > thr).astype(np.uint8), connectivity=8,
-                                                           ltype=cv2.CV_32S)
-    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_pixels) + 1
-    remap = np.zeros(n, np.int32)
-    remap[keep] = np.arange(1, keep.size + 1)
-    labels = remap[labels]
-    m = keep.size
-    flat = labels.ravel()
-    w = np.where(flat > 0, diff.ravel(), 0.0)
-    rows, cols = np.divmod(np.arange(flat.size), diff.shape[1])
-    energy = np.bincount(flat, weights=w, minlength=m + 1)[1:]
-    cen = np.stack([np.bincount(flat, weights=w * rows, minlength=m + 1)[1:],
-                    np.bincount(flat, weights=w * cols, minlength=m + 1)[1:]], axis=-1)
-    cen = cen / np.maximum(energy, 1e-300)[:, None]
-    return Spots(centroid=cen, energy=energy, n_pixels=stats[keep, cv2.CC_STAT_AREA].astype(np.int64),
-                 labels=labels, noise_sigma=sigma, threshold=thr)
-
-
-def detect_spots(frame, noload, *, k: float = 5.0, min_pixels: int = 2) -> Spots:
-    """Find the bright spots of ``frame`` over its no-load frame.
-
-    Parameters
-    ----------
-    frame, noload : (H, W) array_like
-        Grey frames of the same shape (any real dtype; sums in float64).
-    k : float
-        Threshold in robust noise sigmas over the median difference, default 5.
-    min_pixels : int
-        Smallest spot kept (pixels above the threshold), default 2: single hot
-        pixels are dropped.
-
-    Returns
-    -------
-    Spots
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> rng = np.random.default_rng(0)
-    >>> base = rng.normal(20.0, 2.0, (40, 40))
-    >>> r, c = np.mgrid[0:40, 0:40]
-    >>> frame = base + 100.0 * np.exp(-((r - 10.3) ** 2 + (c - 25.6) ** 2) / 2.0)
-    >>> np.round(detect_spots(frame, base).centroid, 1).tolist()
-    [[10.3, 25.6]]
-    """
-    k = positive(k, "k")
-    if isinstance(min_pixels, bool) or not isinstance(min_pixels, (int, np.integer)) or min_pixels < 1:
-        raise InputError(f"min_pixels must be an integer >= 1, got {min_pixels!r}")
-    return _spots(_difference(frame, noload, "frame"), k, int(min_pixels))
-
-
-# ----------------------------------------------------------------------------- the model's predictions
 def _opencv_camera(camera: Camera) -> Camera:
     """An OpenCV-model camera: the default equidistant camera becomes the equal OpenCV fisheye."""
     if isinstance(camera, FisheyeCamera):
@@ -518,7 +399,7 @@ def _frames(pressed, noload_shape) -> list[np.ndarray]:
     if isinstance(pressed, np.ndarray) or not hasattr(pressed, "__len__"):
         raise ShapeError(f"pressed must be a sequence of frames (or a (T, H, W) stack), got "
                          f"{getattr(pressed, 'shape', type(pressed).__name__)}")
-    frames = [_image(f, f"pressed[{i}]") for i, f in enumerate(pressed)]
+    frames = [grey_image(f, f"pressed[{i}]") for i, f in enumerate(pressed)]
     if not frames:
         raise RegistrationError("no pressed frames: give at least one frame in which elements are pressed")
     for i, f in enumerate(frames):
@@ -581,7 +462,7 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
     base = real_array(noload, "noload")
     if base.ndim == 3:
         base = base.mean(axis=0)
-    base = _image(base, "noload")
+    base = grey_image(base, "noload")
     frames = _frames(pressed, base.shape)
     h, w = base.shape
     camera = FisheyeCamera(width=w, height=h) if camera is None else check_type(camera, Camera, "camera")
@@ -601,7 +482,7 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
     pred0, ring0 = _predict(sensor, camera, everything)
     gate0 = GATE * _spacing(pred0)
     diffs = [f - base for f in frames]
-    spots = [_spots(d, k, 2) for d in diffs]
+    spots = [spots_in_difference(d, k, 2) for d in diffs]
     clusters = [_clusters(d, s, sensor, camera) for d, s in zip(diffs, spots, strict=True)]
     rejected = [0] * len(frames)
     for i, cl in enumerate(clusters):  # compact blobs are no element's ring
