@@ -14,10 +14,10 @@ import pytest
 import optitact
 from optitact.camera_models import OpenCVFisheyeCamera, PinholeCamera, pose_from_position
 from optitact.errors import InputError
-from optitact.render import render, render_contacts, spot_pixels
+from optitact.render import render, spot_pixels
 from optitact.render.scene import corner_rays, interpolate_rays
 
-from test_render import PIX_LOAD, centroid, dome_point, single_patch, window
+from test_render import PIX_LOAD, dome_point, patch_spot, single_patch
 
 pytestmark = pytest.mark.render
 
@@ -124,14 +124,7 @@ def test_sensor_plugin_samples_the_cameras_rays(cam):
 ], ids=["pinhole-0", "pinhole-25", "pinhole-35", "tilted-0", "tilted-50", "tilted-65"])
 def test_render_agrees_with_closed_form_projection(cam, polar, azimuth):
     """A small patch's intensity centroid is within 0.25 px of pixel_from_dome of its centre."""
-    p = dome_point(polar, azimuth)
-    px = optitact.pixel_from_dome(p, sensor=SENSOR, camera=cam)
-    crop = window(px, 10)
-    spot = render_contacts(SENSOR, single_patch(p, 0.25), camera=cam, spp=256, seed=7,
-                           crop=crop).astype(np.float64)
-    empty = render_contacts(SENSOR, single_patch(p, 0.0), camera=cam, spp=256, seed=8,
-                            crop=crop).astype(np.float64)
-    c = centroid(spot - empty, crop)
+    c, px = patch_spot(cam, dome_point(polar, azimuth))
     np.testing.assert_allclose(c, px, rtol=0, atol=0.25)
 
 
