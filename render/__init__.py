@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from optitact._validate import integer, positive, seed_value
-from optitact.camera import FisheyeCamera
+from optitact.camera import Camera, FisheyeCamera
 from optitact.contact import Contacts, check_forces, contact_patches
 from optitact.errors import InputError
 from optitact.sensor import DomeSensor
@@ -82,17 +82,21 @@ def _check_variant(variant) -> None:
 
 
 def _check_camera(camera) -> None:
-    """Rendering's Mitsuba sensor is the on-axis equidistant fisheye: refuse the other camera models."""
-    from optitact.camera import Camera
+    """Any camera model renders with ``transport="path"`` (see :func:`_check_two_stage_camera`)."""
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__} (or another camera "
+                        f"model of optitact.camera: PinholeCamera, OpenCVFisheyeCamera)")
 
-    if isinstance(camera, Camera) and not isinstance(camera, FisheyeCamera):
-        raise InputError(f"rendering supports the on-axis equidistant fisheye (FisheyeCamera); got a "
-                         f"{type(camera).__name__} (model {camera.model!r})")
+
+def _check_two_stage_camera(camera: Camera) -> None:
+    """The two-stage transport traces the patches in the on-axis equidistant model: refuse the others."""
     if not isinstance(camera, FisheyeCamera):
-        raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__}")
+        raise InputError(f"transport='two_stage' supports only the on-axis equidistant fisheye "
+                         f"(FisheyeCamera); got a {type(camera).__name__} (model {camera.model!r}): render it "
+                         f"with transport='path'")
 
 
-def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None:
+def _check_crop(crop, camera: Camera) -> tuple[int, int, int, int] | None:
     if crop is None:
         return None
     if isinstance(crop, (str, bytes)) or not hasattr(crop, "__len__"):
@@ -108,7 +112,7 @@ def _check_crop(crop, camera: FisheyeCamera) -> tuple[int, int, int, int] | None
     return r0, c0, h, w
 
 
-def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, spp: int = 64,
+def render(sensor: DomeSensor, forces, *, camera: Camera | None = None, spp: int = 64,
            seed: int = 0, variant: str | None = None, settings: RenderSettings | None = None,
            crop: tuple[int, int, int, int] | None = None, pixels=None, background=None,
            progress: bool = False, transport: str = "path", n_sub: int = 8,
@@ -121,8 +125,12 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
     sensor : DomeSensor
     forces : (N, 3) array_like
         Element-local forces ``(Fx, Fy, Fz)`` in N.
-    camera : FisheyeCamera, optional
-        Default ``FisheyeCamera()`` (640 x 480).
+    camera : Camera, optional
+        Any camera model (:class:`~optitact.FisheyeCamera`,
+        :class:`~optitact.camera_models.PinholeCamera`,
+        :class:`~optitact.camera_models.OpenCVFisheyeCamera`, with its pose);
+        default ``FisheyeCamera()`` (640 x 480). ``transport="two_stage"``
+        takes only a FisheyeCamera.
     spp : int
         Samples per pixel (>= 1), default 64.
     seed : int
@@ -201,7 +209,7 @@ def render(sensor: DomeSensor, forces, *, camera: FisheyeCamera | None = None, s
 
 
 def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
-                    camera: FisheyeCamera | None = None, spp: int = 64, seed: int = 0,
+                    camera: Camera | None = None, spp: int = 64, seed: int = 0,
                     variant: str | None = None, settings: RenderSettings | None = None,
                     crop: tuple[int, int, int, int] | None = None, pixels=None,
                     background=None, progress: bool = False, transport: str = "path",
@@ -315,6 +323,7 @@ def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, backg
                       variant, progress):
     from .twostage import EmissionTable, emission_table, noload_radiance, render_two_stage
 
+    _check_two_stage_camera(camera)
     n_sub = integer(n_sub, "n_sub", minimum=1)
     if pixels is not None:
         raise InputError("transport='two_stage' renders exactly the pixels patches cover; pixels= is "
@@ -335,7 +344,7 @@ def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, backg
     return img
 
 
-def _check_pixels(pixels, background, camera: FisheyeCamera, crop):
+def _check_pixels(pixels, background, camera: Camera, crop):
     """Validate ``pixels``/``background``: flat indices and a float32 canvas, or (None, None)."""
     if pixels is None:
         if background is not None:
@@ -366,7 +375,7 @@ def _check_pixels(pixels, background, camera: FisheyeCamera, crop):
     return np.flatnonzero(mask), canvas
 
 
-def _loaded_region_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces: np.ndarray):
+def _loaded_region_pixels(sensor: DomeSensor, camera: Camera, forces: np.ndarray):
     """Flat pixels (and their element) the pipeline reads for the elements with ``Fz > 0``."""
     from optitact.regions import region_weights, split_regions
 
@@ -374,7 +383,7 @@ def _loaded_region_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces: np.
     return weights.region_pixels(forces[:, 2] > 0)
 
 
-def spot_pixels(sensor: DomeSensor, camera: FisheyeCamera, forces, *,
+def spot_pixels(sensor: DomeSensor, camera: Camera, forces, *,
                 margin: float = 0.0) -> np.ndarray:
     """(H, W) bool: the pixels the pipeline reads for the loaded elements (where spots can show).
 

@@ -1,9 +1,13 @@
-"""Mitsuba scene of the optical tactile sensor: acrylic shell, rim light, contact patches, fisheye.
+"""Mitsuba scene of the optical tactile sensor: acrylic shell, rim light, contact patches, camera.
 
 Convention
 ----------
 Global ``(x, y, z)`` in mm as in :mod:`optitact.sensor`; the film is indexed
-``(row, col)`` like the closed-form camera (:mod:`optitact.camera`).
+``(row, col)`` like the closed-form camera (:mod:`optitact.camera`). Any
+camera model renders: :class:`FisheyeCamera` through its closed-form
+equidistant plugin, the others (:mod:`optitact.camera_models`, with their
+distortion and pose) through a table of their pixel corners' rays
+(:func:`corner_rays`).
 
 The geometry is built as numpy triangle meshes (cached per sensor) and handed
 to Mitsuba in memory; nothing is written to disk.
@@ -18,12 +22,13 @@ from functools import lru_cache
 import numpy as np
 
 from optitact._validate import integer, positive
-from optitact.camera import FisheyeCamera
+from optitact.camera import Camera, FisheyeCamera
 from optitact.contact import Contacts
 from optitact.errors import InputError
 from optitact.sensor import DomeSensor
 
-__all__ = ["RenderSettings", "shell_mesh", "patch_polygons", "patch_mesh", "build_scene"]
+__all__ = ["RenderSettings", "shell_mesh", "patch_polygons", "patch_mesh", "build_scene", "corner_rays",
+           "interpolate_rays"]
 
 
 @dataclass(frozen=True)
@@ -199,15 +204,18 @@ _SENSOR_REGISTERED: set = set()
 
 
 def register_fisheye(mi) -> str:
-    """Register the equidistant fisheye sensor plugins for the active variant; return the full-frame one.
+    """Register the sensor plugins for the active variant; return the full-frame fisheye one.
 
-    ``optitact_fisheye`` renders the film (or its crop window);
+    ``optitact_fisheye`` is the closed-form equidistant fisheye of
+    :class:`FisheyeCamera` and renders the film (or its crop window);
     ``optitact_fisheye_packed`` renders a list of image pixels packed into a
     small film: film pixel ``k`` (row-major) is image pixel ``(rows[k],
     cols[k])``, a sample keeps its sub-pixel position (so each listed pixel
     is integrated exactly as in a full frame), and film pixels past the list
-    look away from the dome (they read 0). :func:`build_scene` sets the
-    tables on the loaded sensor.
+    look away from the dome (they read 0). ``optitact_ray_table`` and
+    ``optitact_ray_table_packed`` do the same for any other camera model
+    from a table of corner rays (see :func:`corner_rays`). :func:`build_scene`
+    sets the tables on the loaded sensor.
     """
     name = "optitact_fisheye"
     if mi.variant() in _SENSOR_REGISTERED:
@@ -215,8 +223,18 @@ def register_fisheye(mi) -> str:
     from optitact._optional import require
 
     dr = require("drjit", purpose="rendering")
+    jit = dr.is_jit_v(mi.Float)
 
-    class Fisheye(mi.Sensor):
+    class Lens(mi.Sensor):
+        """A sensor whose rays carry no differentials."""
+
+        def sample_ray_differential(self, time, wavelength_sample, position_sample,
+                                    aperture_sample, active=True):
+            ray, weight = self.sample_ray(time, wavelength_sample, position_sample,
+                                          aperture_sample, active)
+            return mi.RayDifferential3f(ray), weight
+
+    class Fisheye(Lens):
         """Equidistant fisheye on the dome axis; same model as :class:`FisheyeCamera`."""
 
         def __init__(self, props):
@@ -244,12 +262,6 @@ def register_fisheye(mi) -> str:
                 d = dr.select(listed, d, mi.Vector3f(0.0, 0.0, -1.0))
             ray = mi.Ray3f(mi.Point3f(0.0, 0.0, self.cz), d, time, [])
             return ray, mi.Spectrum(1.0)
-
-        def sample_ray_differential(self, time, wavelength_sample, position_sample,
-                                    aperture_sample, active=True):
-            ray, weight = self.sample_ray(time, wavelength_sample, position_sample,
-                                          aperture_sample, active)
-            return mi.RayDifferential3f(ray), weight
 
         def to_string(self):
             return f"Fisheye[focal_px={self.focal}, z={self.cz}]"
@@ -279,8 +291,87 @@ def register_fisheye(mi) -> str:
         def to_string(self):
             return f"PackedFisheye[focal_px={self.focal}, z={self.cz}, pixels={self.n_pixels}]"
 
+    def gather3(table, index):
+        if jit:
+            return dr.gather(mi.Vector3f, table, index)
+        return mi.Vector3f(*(float(v) for v in table[int(index)]))
+
+    def gather1(table, index):
+        return dr.gather(mi.Float, table, index) if jit else float(table[int(index)])
+
+    def cell_of(q, size):
+        """Cell ``(column, row)`` of a film position (clamped into the film) and the offsets in it."""
+        jx = dr.clip(dr.floor(q.x), 0.0, size.x - 1.0)
+        jy = dr.clip(dr.floor(q.y), 0.0, size.y - 1.0)
+        return mi.UInt32(jx), mi.UInt32(jy), q.x - jx, q.y - jy
+
+    class RayTable(Lens):
+        """Any camera model: rays interpolated bilinearly between the pixel corners' rays.
+
+        ``corners`` holds the unit dome-frame ray of every corner of the film's
+        (crop window's) pixels, ``(h + 1) x (w + 1) x 3`` row-major, and
+        ``valid`` 1 per pixel whose 4 corners have a ray (0: the pixel's
+        samples miss with weight 0).
+        """
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.origin = mi.Point3f(float(props.get("origin_x")), float(props.get("origin_y")),
+                                     float(props.get("origin_z")))
+            self.corners = mi.Float(0.0)
+            self.valid = mi.Float(0.0)
+
+        def cell(self, position_sample):
+            """Pixel (table cell) index, its first corner's index, the corner row stride, offsets, listed."""
+            size = mi.ScalarVector2f(self.film().crop_size())
+            jx, jy, u, v = cell_of(position_sample * size, size)
+            w = mi.UInt32(int(size.x))
+            return jy * w + jx, jy * (w + 1) + jx, w + 1, u, v, None
+
+        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
+                       active=True):
+            k, base, stride, u, v, listed = self.cell(position_sample)
+            d00 = gather3(self.corners, base)
+            d01 = gather3(self.corners, base + 1)
+            d10 = gather3(self.corners, base + stride)
+            d11 = gather3(self.corners, base + stride + 1)
+            d = (d00 * (1.0 - u) + d01 * u) * (1.0 - v) + (d10 * (1.0 - u) + d11 * u) * v
+            ok = gather1(self.valid, k) > 0.5
+            if listed is not None:
+                ok = ok & listed
+            d = dr.select(ok, dr.normalize(d), mi.Vector3f(0.0, 0.0, -1.0))
+            ray = mi.Ray3f(self.origin, d, time, [])
+            return ray, mi.Spectrum(dr.select(ok, 1.0, 0.0))
+
+        def to_string(self):
+            return f"RayTable[origin={self.origin}]"
+
+    class PackedRayTable(RayTable):
+        """The ray table rendering only listed image pixels, packed into a small film.
+
+        ``corners`` holds the 4 corner rays of each listed pixel (``n x 2 x 2
+        x 3``), ``valid`` one flag per listed pixel.
+        """
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.n_pixels = 0
+
+        def cell(self, position_sample):
+            size = mi.ScalarVector2f(self.film().size())
+            jx, jy, u, v = cell_of(position_sample * size, size)
+            k = jy * mi.UInt32(int(size.x)) + jx
+            listed = k < self.n_pixels
+            k = dr.select(listed, k, 0)
+            return k, 4 * k, 2, u, v, listed
+
+        def to_string(self):
+            return f"PackedRayTable[origin={self.origin}, pixels={self.n_pixels}]"
+
     mi.register_sensor(name, lambda props: Fisheye(props))
     mi.register_sensor(PACKED_SENSOR, lambda props: PackedFisheye(props))
+    mi.register_sensor(TABLE_SENSOR, lambda props: RayTable(props))
+    mi.register_sensor(PACKED_TABLE_SENSOR, lambda props: PackedRayTable(props))
     _SENSOR_REGISTERED.add(mi.variant())
     return name
 
@@ -289,9 +380,98 @@ def register_fisheye(mi) -> str:
 PACKED_WIDTH = 256
 #: Name of the packed-pixel fisheye plugin (see :func:`register_fisheye`).
 PACKED_SENSOR = "optitact_fisheye_packed"
+#: Names of the ray-table plugins for any camera model, full film and packed pixels.
+TABLE_SENSOR = "optitact_ray_table"
+PACKED_TABLE_SENSOR = "optitact_ray_table_packed"
 
 
-def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contacts,
+def _finite_rays(rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Float32 rays with the missing (NaN) ones zeroed, and which are present."""
+    ok = np.isfinite(rays).all(axis=-1)
+    return np.where(ok[..., None], rays, 0.0).astype(np.float32), ok
+
+
+@lru_cache(maxsize=4)
+def _window_corner_rays(camera: Camera, r0: int, c0: int, h: int, w: int):
+    rows = r0 - 0.5 + np.arange(h + 1, dtype=np.float64)
+    cols = c0 - 0.5 + np.arange(w + 1, dtype=np.float64)
+    grid = np.stack(np.meshgrid(rows, cols, indexing="ij"), axis=-1)
+    rays, ok = _finite_rays(camera.ray_from_pixel(grid))
+    valid = ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]
+    rays.flags.writeable = False
+    valid.flags.writeable = False
+    return rays, valid
+
+
+def corner_rays(camera: Camera, crop: tuple[int, int, int, int] | None = None,
+                pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Dome-frame unit rays of the pixel corners, and which pixels have all four, for the ray-table plugin.
+
+    Pixel ``(row, col)`` covers ``[row - 0.5, row + 0.5) x [col - 0.5, col +
+    0.5)`` (the package's convention, :mod:`optitact.camera`); its corners'
+    rays come from :meth:`Camera.ray_from_pixel`. Inside a pixel the plugin
+    interpolates them bilinearly and normalises; a pixel with a corner no ray
+    maps to (NaN, e.g. beyond a pinhole's field) is marked invalid: its
+    samples miss with weight 0.
+
+    Parameters
+    ----------
+    camera : Camera
+    crop : (row0, col0, height, width), optional
+        The window to cover (default the whole image).
+    pixels : (n,) int array, optional
+        Flat pixel indices (``row * width + col``) instead of a window.
+
+    Returns
+    -------
+    rays : float32 ndarray
+        ``(h + 1, w + 1, 3)`` for a window (cached per camera and window),
+        ``(n, 2, 2, 3)`` (each pixel's corners, rows then columns) for
+        ``pixels``; missing rays are 0.
+    valid : bool ndarray
+        ``(h, w)`` or ``(n,)``: pixels whose four corners have rays.
+    """
+    if pixels is None:
+        r0, c0, h, w = (0, 0, camera.height, camera.width) if crop is None else crop
+        return _window_corner_rays(camera, int(r0), int(c0), int(h), int(w))
+    rows, cols = np.divmod(np.asarray(pixels, dtype=np.int64), camera.width)
+    # corner (i, j) of a pixel lies at (row + i - 0.5, col + j - 0.5): flat index in the (H+1) x (W+1) grid
+    ids = ((rows[:, None, None] + np.arange(2)[None, :, None]) * (camera.width + 1)
+           + cols[:, None, None] + np.arange(2)[None, None, :])
+    unique, inverse = np.unique(ids, return_inverse=True)
+    cr, cc = np.divmod(unique, camera.width + 1)
+    rays, ok = _finite_rays(camera.ray_from_pixel(np.stack([cr - 0.5, cc - 0.5], axis=-1)))
+    return rays[inverse.reshape(ids.shape)], ok[inverse.reshape(ids.shape)].all(axis=(1, 2))
+
+
+def interpolate_rays(rays: np.ndarray, positions: np.ndarray, origin=(0.0, 0.0)) -> np.ndarray:
+    """NumPy reference of the ray-table plugin: rays at sub-pixel positions from a window's corner rays.
+
+    Parameters
+    ----------
+    rays : (h + 1, w + 1, 3) array
+        Corner rays of a window (:func:`corner_rays`).
+    positions : (..., 2) array
+        Image positions ``(row, col)`` inside the window.
+    origin : (row0, col0)
+        The window's first pixel.
+
+    Returns
+    -------
+    (..., 3) float64 ndarray
+        Bilinear interpolation between the 4 corners of each position's pixel, normalised.
+    """
+    q = np.asarray(positions, dtype=np.float64) - np.asarray(origin, dtype=np.float64) + 0.5
+    h, w = rays.shape[0] - 1, rays.shape[1] - 1
+    i = np.clip(np.floor(q[..., 0]), 0, h - 1).astype(np.int64)
+    j = np.clip(np.floor(q[..., 1]), 0, w - 1).astype(np.int64)
+    v, u = (q[..., 0] - i)[..., None], (q[..., 1] - j)[..., None]
+    t = rays.astype(np.float64)
+    d = (t[i, j] * (1 - u) + t[i, j + 1] * u) * (1 - v) + (t[i + 1, j] * (1 - u) + t[i + 1, j + 1] * u) * v
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def build_scene(mi, sensor: DomeSensor, camera: Camera, contacts: Contacts,
                 settings: RenderSettings, *, crop: tuple[int, int, int, int] | None = None,
                 pixels: np.ndarray | None = None, instanced: bool = False):
     """Assemble the Mitsuba scene for one frame.
@@ -308,6 +488,13 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
         Render only these flat pixel indices (``row * width + col``), packed
         row-major into a film ``PACKED_WIDTH`` wide (see
         :func:`register_fisheye`).
+
+    The camera is any :class:`~optitact.camera.Camera`: a
+    :class:`FisheyeCamera` gets the closed-form equidistant plugin, another
+    model the ray-table plugin, its rays starting at ``camera.position``
+    and interpolated between the pixel corners' rays (:func:`corner_rays`,
+    cached per camera and window: about 2 s for a distorted 640 x 480
+    pinhole's table, re-projecting within 0.001 px).
     instanced : bool
         Put the shell (about 150,000 triangles at the default tessellation)
         in a shape group drawn by one instance. Building the scene then takes
@@ -324,7 +511,7 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
     light, which the shell guides by total internal reflection. Where a cone
     touches, a diffuse rubber patch inside the outer surface scatters the
     guided light (frustrated TIR); the part scattered below the critical angle
-    leaves through the inner surface towards the fisheye camera. Unloaded
+    leaves through the inner surface towards the camera. Unloaded
     elements get no geometry.
     """
     shell = shell_mesh(sensor.inner_radius, sensor.outer_radius, settings.n_polar,
@@ -358,15 +545,20 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
 
     film = {"type": "hdrfilm", "width": camera.width, "height": camera.height,
             "pixel_format": "luminance", "rfilter": {"type": "box"}, "sample_border": False}
-    lens = {"type": register_fisheye(mi), "focal_px": camera.focal_px,
-            "camera_z": float(camera.z)}
+    fisheye = isinstance(camera, FisheyeCamera)
+    register_fisheye(mi)
+    if fisheye:
+        lens = {"type": "optitact_fisheye" if pixels is None else PACKED_SENSOR,
+                "focal_px": camera.focal_px, "camera_z": float(camera.z)}
+    else:
+        ox, oy, oz = (float(v) for v in camera.position)
+        lens = {"type": TABLE_SENSOR if pixels is None else PACKED_TABLE_SENSOR,
+                "origin_x": ox, "origin_y": oy, "origin_z": oz}
     if pixels is not None:
         n = len(pixels)
         film.update(width=min(n, PACKED_WIDTH), height=-(-n // PACKED_WIDTH))
-        register_fisheye(mi)
-        lens = {"type": PACKED_SENSOR, "focal_px": camera.focal_px,
-                "camera_z": float(camera.z), "image_width": camera.width,
-                "image_height": camera.height}
+        if fisheye:
+            lens.update(image_width=camera.width, image_height=camera.height)
     if crop is not None:
         r0, c0, h, w = crop
         film.update(crop_offset_x=int(c0), crop_offset_y=int(r0), crop_width=int(w),
@@ -379,10 +571,26 @@ def build_scene(mi, sensor: DomeSensor, camera: FisheyeCamera, contacts: Contact
         **objects,
     }
     loaded = mi.load_dict(scene)
-    if pixels is not None:
-        lens_obj = loaded.sensors()[0]
+    lens_obj = loaded.sensors()[0]
+    if pixels is not None and fisheye:
         rows, cols = np.divmod(np.asarray(pixels, dtype=np.int64), camera.width)
         lens_obj.rows = mi.Float(rows.astype(np.float32))
         lens_obj.cols = mi.Float(cols.astype(np.float32))
         lens_obj.n_pixels = len(rows)
+    elif not fisheye:
+        rays, valid = corner_rays(camera, crop=crop, pixels=pixels)
+        if pixels is not None:
+            lens_obj.n_pixels = len(pixels)
+        _set_tables(mi, lens_obj, rays.reshape(-1, 3), valid.reshape(-1).astype(np.float32))
     return loaded
+
+
+def _set_tables(mi, lens, rays: np.ndarray, valid: np.ndarray) -> None:
+    """Hand the corner rays and pixel flags to a ray-table sensor (flat Dr.Jit arrays; numpy on scalar)."""
+    import drjit as dr
+
+    if dr.is_jit_v(mi.Float):
+        lens.corners = mi.Float(np.ascontiguousarray(rays, np.float32).ravel())
+        lens.valid = mi.Float(np.ascontiguousarray(valid, np.float32))
+    else:
+        lens.corners, lens.valid = rays, valid

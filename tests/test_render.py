@@ -56,6 +56,18 @@ def centroid(img, crop):
     return np.array([(w * rr).sum() / w.sum() + crop[0], (w * cc).sum() / w.sum() + crop[1]])
 
 
+def patch_spot(camera, point):
+    """The intensity centroid (row, col) of a 0.25 mm patch at a dome point (256 spp, over the empty
+    frame), and ``pixel_from_dome`` of the point."""
+    px = optitact.pixel_from_dome(point, sensor=SENSOR, camera=camera)
+    crop = window(px, 10)
+    spot = render_contacts(SENSOR, single_patch(point, 0.25), camera=camera, spp=256, seed=7,
+                           crop=crop).astype(np.float64)
+    empty = render_contacts(SENSOR, single_patch(point, 0.0), camera=camera, spp=256, seed=8,
+                            crop=crop).astype(np.float64)
+    return centroid(spot - empty, crop), px
+
+
 def test_variant_is_the_fastest_that_works():
     mi, variant = select_variant()
     assert variant in PREFERRED_VARIANTS
@@ -93,14 +105,7 @@ def test_tiny_render_smoke():
 @pytest.mark.parametrize("polar,azimuth", [(0, 0), (30, 40), (50, 200), (65, 300)])
 def test_render_agrees_with_closed_form_projection(polar, azimuth):
     """A small patch's intensity centroid is within 0.25 px of project() of its centre."""
-    p = dome_point(polar, azimuth)
-    px = CAMERA.project(p, SENSOR)
-    crop = window(px, 10)
-    spot = render_contacts(SENSOR, single_patch(p, 0.25), camera=CAMERA, spp=256, seed=7,
-                           crop=crop).astype(np.float64)
-    empty = render_contacts(SENSOR, single_patch(p, 0.0), camera=CAMERA, spp=256, seed=8,
-                            crop=crop).astype(np.float64)
-    c = centroid(spot - empty, crop)
+    c, px = patch_spot(CAMERA, dome_point(polar, azimuth))
     np.testing.assert_allclose(c, px, rtol=0, atol=0.25)
 
 
