@@ -269,3 +269,29 @@ def test_element_offsets_fit_with_their_prior(standins):
     assert np.abs(reg.element_offsets).max() <= 0.05
     assert "offset_2_x_mm" in reg.std_errors and "offset_2_x_mm" not in {f"offset_{e}_x_mm" for e in reg.unseen}
     assert json.loads(json.dumps(reg.to_dict()))["registration"]["element_offsets_mm"]
+
+
+def test_a_set_for_a_registered_sensor_uses_its_camera(tmp_path, monkeypatch):
+    """calibrate generate --setup: the set is made for the setup's camera, path-traced (two-stage
+    takes only the on-axis equidistant fisheye)."""
+    import json
+
+    import optitact.calib as calib
+    from optitact.camera_models import PinholeCamera
+
+    cam = PinholeCamera(width=64, height=48, fx=30.0, fy=30.0, cx=31.5, cy=23.5, tvec=(0.1, 0.0, 5.0))
+    setup = tmp_path / "setup.json"
+    setup.write_text(json.dumps({"sensor": optitact.DomeSensor.default().to_dict(), "camera": cam.to_dict()}))
+    seen = {}
+
+    def fake_generate(path, **kw):
+        seen.update(kw)
+        raise optitact.InputError("stop here")   # the command's wiring is what is tested
+
+    monkeypatch.setattr(calib, "generate", fake_generate)
+    from optitact.cli import main
+
+    assert main(["calibrate", "generate", "--frames", "2", "--out", str(tmp_path / "s.zarr"),
+                 "--setup", str(setup)]) == 2
+    assert seen["camera"] == cam and seen["render_mode"] == "pixels"
+    assert seen["sensor"] == optitact.DomeSensor.default()

@@ -43,8 +43,14 @@ def add_parsers(sub) -> None:
     gen.add_argument("--mu-max", type=float, default=0.35,
                      help="largest shear/normal ratio (default 0.35; the feeler tips at ~0.37)")
     gen.add_argument("--keep-frames", action="store_true", help="also store the frames")
-    gen.add_argument("--render-mode", choices=render_mode_choices(), default="two_stage",
-                     help="two_stage (default): guided light from a table (shipped for the default "
+    gen.add_argument("--setup", type=Path, default=None, metavar="SETUP.json",
+                     help="the sensor and camera of a setup file (e.g. from optitact register): a set "
+                          "for your registered sensor; a camera other than the on-axis equidistant "
+                          "fisheye is path-traced (--render-mode pixels by default); "
+                          "--width/--height do not apply")
+    gen.add_argument("--render-mode", choices=render_mode_choices(), default=None,
+                     help="two_stage (default; pixels for a --setup camera two_stage cannot take): "
+                          "guided light from a table (shipped for the default "
                           "camera, else measured once and cached, announced with its time), patches "
                           "traced as emitters, ~0.05 s/frame, no Monte Carlo "
                           "noise; pixels: path-trace only the pixels the pipeline reads; full: "
@@ -133,10 +139,19 @@ def run_generate(args) -> int:
     from optitact.calib import Design, generate
     from optitact.camera import FisheyeCamera
 
+    from .process import read_setup
+
     design = Design(fz_max=args.fz_max, shear_max=args.shear_max, mu_max=args.mu_max)
-    cs = generate(args.out, frames=args.frames, camera=FisheyeCamera(width=args.width, height=args.height),
+    if args.setup is not None:
+        sensor, camera = read_setup(args.setup)
+    else:
+        sensor, camera = None, FisheyeCamera(width=args.width, height=args.height)
+    mode = args.render_mode
+    if mode is None:  # the two-stage transport takes the on-axis equidistant fisheye only
+        mode = "two_stage" if type(camera) is FisheyeCamera else "pixels"
+    cs = generate(args.out, frames=args.frames, sensor=sensor, camera=camera,
                   spp=args.spp, seed=args.seed, design=design, keep_frames=args.keep_frames,
-                  variant=args.variant, render_mode=args.render_mode, scheduler=args.scheduler,
+                  variant=args.variant, render_mode=mode, scheduler=args.scheduler,
                   table_spp=args.table_spp)
     print(f"optitact: calibration set {args.out}: {int(cs.done.sum())} of {len(cs)} frames "
           f"done", file=sys.stderr)
@@ -214,9 +229,9 @@ def _presses_pipeline(setup, start, frames):
 
     if setup is None:
         return start.pipeline() if start is not None else default_pipeline(frames)
-    from .process import _setup
+    from .process import read_setup
 
-    sensor, camera = _setup(setup)
+    sensor, camera = read_setup(setup)
     if start is None:
         return Pipeline(sensor, camera)
     if sensor.n_elements != len(start.g):

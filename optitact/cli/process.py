@@ -105,7 +105,7 @@ def add_parsers(sub) -> None:
     proc.set_defaults(run=run_process)
 
 
-def _setup(path: Path) -> tuple[DomeSensor, Camera]:
+def read_setup(path: Path) -> tuple[DomeSensor, Camera]:
     """The sensor and camera of a ``--setup`` JSON file."""
     setup = json.loads(path.read_text())
     if not isinstance(setup, dict) or "sensor" not in setup or "camera" not in setup:
@@ -195,7 +195,7 @@ def run_process(args) -> int:
     first = next(iter_frames(files[:1]), None)
     if first is None:
         raise InputError("the frames hold no frame")
-    setup = None if args.setup is None else _setup(args.setup)
+    setup = None if args.setup is None else read_setup(args.setup)
     given = _given(args)
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
     cal = _calibration(args, given, setup)
@@ -326,7 +326,7 @@ def _run_live(args) -> int:
         raise InputError("--scheduler processes files on a cluster; a --camera stream is processed here")
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be > 0, got {args.seconds:g}")
-    setup = None if args.setup is None else _setup(args.setup)
+    setup = None if args.setup is None else read_setup(args.setup)
     given = _given(args)
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
     cal = _calibration(args, given, setup)
