@@ -23,10 +23,13 @@ from optitact import _kernel
 from optitact.errors import InputError
 from optitact.pipeline import CHUNK_FRAMES, Pipeline
 
+import test_pipeline
+
 SENSOR = optitact.DomeSensor.default()
 SMALL = optitact.FisheyeCamera(width=160, height=120)
 DTYPES = [np.uint8, np.uint16, np.float32, np.float64]
 FIELDS = ("G", "u", "contact", "saturated")
+noisy_scene = test_pipeline.noisy_scene  # the pipeline tests' fixture, shared
 
 needs_numba = pytest.mark.skipif(not _kernel.available(), reason="numba (the fast extra) is not installed")
 
@@ -95,18 +98,12 @@ def test_numba_equals_numpy_at_the_threshold(base, thr, dtype):
 
 
 @needs_numba
-def test_numba_equals_numpy_on_the_pipeline_tests_frames():
+def test_numba_equals_numpy_on_the_pipeline_tests_frames(noisy_scene):
     """The analytic spot frames of test_pipeline (41 spots, structured background, noise), uint8 and float64."""
-    from test_pipeline import CAM, scene_spots, spot_frame
-
-    rows, cols = np.mgrid[0:CAM.height, 0:CAM.width]
-    background = 20.0 + 8.0 * np.sin(rows / 9.0) * np.cos(cols / 13.0)
-    rng = np.random.default_rng(3)
-    frame = spot_frame(CAM, scene_spots(2), background) + rng.normal(0.0, 1.0, CAM.shape)
-    base = background[None] + rng.normal(0.0, 1.0, (4,) + CAM.shape)
+    frame, base = noisy_scene
     for dtype in (np.uint8, np.float64):
-        cast = (lambda a: np.clip(np.rint(a), 0, 254).astype(np.uint8)) if dtype == np.uint8 else np.asarray
-        p = Pipeline(SENSOR, CAM, baseline=cast(base), noise_sigma=1.0, kernel="numpy")
+        cast = lambda a, d=dtype: np.asarray(a, d)  # noqa: E731
+        p = Pipeline(SENSOR, test_pipeline.CAM, baseline=cast(base), noise_sigma=1.0, kernel="numpy")
         q = p.replace(kernel="numba")
         a, b = p.process(cast(frame)), q.process(cast(frame))
         assert_identical(a, b)
