@@ -22,6 +22,17 @@ def _median_rate(n: int, seconds: list[float]) -> float:
     return float(n / np.median(seconds))
 
 
+def _clock(into: list, fn, *args) -> None:
+    t = time.perf_counter()
+    fn(*args)
+    into.append(time.perf_counter() - t)
+
+
+def _each(pipe, frames) -> None:
+    for f in frames:
+        pipe.process(f)
+
+
 def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeats: int = 5,
                    n_reference: int = 3, spp: int = 64, seed: int = 0,
                    variant: str | None = None) -> dict:
@@ -58,7 +69,13 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
         floor the fast path is), ``max_G_rel_diff`` and ``max_u_diff_mm``
         (fast vs reference over the reference's frames, elements in
         contact), ``flags_identical``, ``elements_in_contact``, ``lit_pixels``
-        (median per frame), ``precompute_s``.
+        (median per frame), ``precompute_s``; and side by side: ``kernel``
+        (what ``fast`` ran: ``"numba"``, else ``"numpy"``), ``numpy_fps`` and
+        ``floor_over_numpy`` (the NumPy fallback, frame by frame),
+        ``kernels_identical`` (its readings equal the fast path's bit for
+        bit), ``batch_1thread_fps`` and ``batch_threads_fps`` (a stack of at
+        least 64 frames on one thread and on ``threads``, the cores this
+        process may use) and ``threads_speedup`` (their ratio).
     """
     import os
     import platform
@@ -68,7 +85,7 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
     from optitact._cache import cached_render
     from optitact.ccd import CCD
     from optitact.loads import random_load
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline import Pipeline, _cores
 
     n_frames = integer(n_frames, "n_frames", minimum=1)
     repeats = integer(repeats, "repeats", minimum=1)
@@ -77,7 +94,7 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
     sensor = DomeSensor.default()
     forces = random_load(sensor, seed=seed)
     ccd = CCD()
-    result: dict = {"cores": os.cpu_count(), "threads": 1,
+    result: dict = {"cores": os.cpu_count(), "threads": _cores(),
                     "python": platform.python_version(), "numpy": np.__version__,
                     "frames": f"{n_frames} uint8 frames per size: all 41 elements loaded "
                               f"(random_load seed {seed}), rendered at {spp} spp, CCD noise",
@@ -96,19 +113,21 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
         fast = Pipeline(sensor, camera, baseline=baseline)
         precompute = time.perf_counter() - t0
         ref = fast.replace(method="reference")
+        numpy_pipe = fast.replace(kernel="numpy")
+        one_thread = fast.replace(threads=1)
+        long = np.concatenate([frames] * max(1, -(-64 // n_frames)))  # a long stack: >= 64 frames
         sub = frames[:n_reference]
-        t_fast, t_batch, t_floor, t_ref = [], [], [], []
+        t_fast, t_batch, t_floor, t_ref, t_numpy, t_b1, t_bn = [], [], [], [], [], [], []
         thr = int(np.ceil(fast.threshold + baseline.mean()))
-        fast.process(frames[0])  # warm caches (level maps)
+        for p in (fast, numpy_pipe, one_thread):
+            p.process(frames[:2])  # warm caches (level maps, the compiled kernel)
         for _ in tqdm(range(repeats), desc=f"bench pipeline {width}x{height}", unit="repeat",
                       file=sys.stderr):
-            t = time.perf_counter()
-            for f in frames:
-                fast.process(f)
-            t_fast.append(time.perf_counter() - t)
-            t = time.perf_counter()
-            fast.process(frames)
-            t_batch.append(time.perf_counter() - t)
+            _clock(t_fast, _each, fast, frames)
+            _clock(t_numpy, _each, numpy_pipe, frames)
+            _clock(t_batch, fast.process, frames)
+            _clock(t_b1, one_thread.process, long)
+            _clock(t_bn, fast.process, long)
             t = time.perf_counter()
             for f in frames:
                 np.count_nonzero(f > thr)
@@ -125,8 +144,19 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
         fast_fps = _median_rate(n_frames, t_fast)
         floor_fps = _median_rate(n_frames, t_floor)
         ref_fps = _median_rate(len(sub), t_ref)
+        numpy_fps = _median_rate(n_frames, t_numpy)
+        b1_fps, bn_fps = _median_rate(len(long), t_b1), _median_rate(len(long), t_bn)
+        rn = numpy_pipe.process(sub)
         result[f"{width}x{height}"] = {
+            "kernel": fast.kernel,
             "fast_fps": round(fast_fps, 1),
+            "numpy_fps": round(numpy_fps, 1),
+            "floor_over_numpy": round(floor_fps / numpy_fps, 2),
+            "kernels_identical": bool(all(np.array_equal(getattr(rf, k), getattr(rn, k))
+                                          for k in ("G", "u", "contact", "saturated"))),
+            "batch_1thread_fps": round(b1_fps, 1),
+            "batch_threads_fps": round(bn_fps, 1),
+            "threads_speedup": round(bn_fps / b1_fps, 2),
             "batch_fps": round(_median_rate(n_frames, t_batch), 1),
             "reference_fps": round(ref_fps, 2),
             "speedup": round(fast_fps / ref_fps, 1),
