@@ -20,7 +20,7 @@ import importlib
 import importlib.util
 import threading
 
-from .errors import MissingExtraError
+from ._optional import require
 
 __all__ = ["KERNELS", "available", "lit_sums", "resolve"]
 
@@ -67,8 +67,7 @@ def resolve(kernel: str) -> str:
     if available():
         return "numba"
     if kernel == "numba":
-        raise MissingExtraError("numba is needed for kernel='numba' (the compiled per-frame kernel) but is "
-                                "not installed: pip install 'optitact[fast]'")
+        require("numba", purpose="kernel='numba' (the compiled per-frame kernel)")  # MissingExtraError
     return "numpy"
 
 

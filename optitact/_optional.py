@@ -8,6 +8,7 @@ Everything else is an extra::
     dask     Dask distributed (cluster scale-out of sets and batch processing)
     taxels   scikit-learn, dtaidistance (the taxel-sensor studies)
     plot     matplotlib (every PNG figure)
+    fast     numba (the compiled per-frame kernel; NumPy otherwise, same readings)
     all      everything above
 """
 
@@ -30,6 +31,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "sklearn": ("taxels", "scikit-learn"),
     "dtaidistance": ("taxels", "dtaidistance"),
     "matplotlib": ("plot", "matplotlib"),
+    "numba": ("fast", "numba"),
 }
 
 
