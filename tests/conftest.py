@@ -2,12 +2,19 @@
 
 Expensive objects (renders, calibration sets, study results) are built once per session
 by fixtures here or in a folder's own ``conftest.py``; the notebooks run after every other
-test, so they find the quick study results and tables in the session's cache.
+test, so they find the quick study results and tables in the session's cache, except those
+that read none of it (``EARLY_NOTEBOOKS``): they start with the session in a background
+process, beside the tests.
 """
 
 from __future__ import annotations
 
+import pathlib
+import subprocess
+import sys
+
 import pytest
+from _notebook_runner import EARLY_NOTEBOOKS  # tests/ is on sys.path (rootdir conftest)
 from hypothesis import settings
 
 # A busy machine is slow, not wrong: no per-example deadline anywhere in the suite.
@@ -16,13 +23,28 @@ settings.load_profile("optitact")
 
 
 @pytest.fixture(autouse=True, scope="session")
-def _private_cache(tmp_path_factory):
+def _private_cache(tmp_path_factory, request):
     mp = pytest.MonkeyPatch()
     mp.setenv("OPTITACT_CACHE_DIR", str(tmp_path_factory.mktemp("optitact-cache")))
+    early = getattr(request.config, "_optitact_early_notebooks", [])
+    runner = None
+    if early:
+        out = tmp_path_factory.mktemp("early-notebooks")
+        runner = subprocess.Popen([sys.executable, str(pathlib.Path(__file__).with_name("_notebook_runner.py")),
+                                   str(out), *map(str, early)])
+        request.config._optitact_early_runner = (runner, out)
     yield
+    if runner is not None and runner.poll() is None:  # the session ended before its tests waited
+        runner.kill()
+        runner.wait()
     mp.undo()
 
 
 def pytest_collection_modifyitems(config, items):
-    """Run the notebook executions last (stable order otherwise)."""
+    """Run the notebook executions last (stable order otherwise); start the early ones at once."""
     items.sort(key=lambda item: item.get_closest_marker("notebook") is not None)
+    notebooks = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
+    config._optitact_early_notebooks = [
+        notebooks / f"{name}.ipynb" for name in EARLY_NOTEBOOKS
+        if any(item.get_closest_marker("notebook") is not None and item.name.endswith(f"[{name}]")
+               for item in items)]

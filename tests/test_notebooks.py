@@ -3,14 +3,17 @@
 The ``notebooks/*.py`` percent scripts are the reviewable sources; ``jupytext --to ipynb
 notebooks/0*.py`` writes their ``.ipynb`` twins. Notebooks run last in the session
 (``conftest.py``), so the quick study results, renders and tables the tests made are in the
-cache they read.
+cache they read; those that read none of it (``EARLY_NOTEBOOKS``) start with the session in a
+background process (``_notebook_runner.py``) and their tests wait for the result.
 """
 
 from __future__ import annotations
 
+import json
 import pathlib
 
 import pytest
+from _notebook_runner import EARLY_NOTEBOOKS
 
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
@@ -35,7 +38,14 @@ def test_notebook_matches_its_script_and_has_no_outputs(script):
 
 @pytest.mark.notebook
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.stem)
-def test_notebook_runs(script, tmp_path):
+def test_notebook_runs(script, tmp_path, request):
+    early = getattr(request.config, "_optitact_early_runner", None)
+    if early is not None and script.stem in EARLY_NOTEBOOKS:  # started with the session (conftest.py)
+        runner, out = early
+        runner.wait()
+        result = json.loads((out / f"{script.stem}.json").read_text())
+        assert not result["errors"], result["errors"]
+        return
     nb = nbformat.read(script.with_suffix(".ipynb"), as_version=4)
     # No cell timeout: a busy machine is slow, not wrong (CI has its own overall limit).
     client = nbclient.NotebookClient(nb, timeout=None, startup_timeout=600, kernel_name="python3",
