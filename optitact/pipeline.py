@@ -72,6 +72,7 @@ from .steps import (
     denoise,
     estimate_noise,
     filter_radius,
+    impulses,
     noise_from_one_frame,
     readings_from_moments,
     subtract_baseline,
@@ -79,6 +80,10 @@ from .steps import (
 
 # The steps and the region geometry live in optitact.steps and optitact.regions; they are
 # re-exported here, where the pipeline's stages are documented.
+#: Probability that isolated bright pixels (:func:`~optitact.steps.impulses`) alone lift one
+#: region of one frame above its noise floor.
+IMPULSE_FALSE_CONTACT = 1e-5
+
 __all__ = [
     "CHUNK_FRAMES",
     "FILTERS",
@@ -340,6 +345,7 @@ class Pipeline:
         #: dtype of the baseline as given (frames of another integer dtype are refused).
         self.baseline_dtype = None
         self._one_frame = False
+        self._impulses = None
         self.baseline, self.noise_map = (None, None) if baseline is None \
             else self._check_baseline(baseline)
         #: Per-pixel threshold (H, W) when there is a baseline whose noise could be measured:
@@ -364,6 +370,7 @@ class Pipeline:
         n_false = self.region_weights.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
+        impulse_g = self._impulse_floor(fold)
         #: Threshold (grey levels) of each entry of :attr:`region_weights`.
         if self.threshold_map is None:
             self.entry_threshold = np.full(len(fold.pixel), self.threshold)
@@ -373,7 +380,7 @@ class Pipeline:
         region_thr = np.divide(region_thr, fold.n_pixels, out=np.zeros(len(fold.n_pixels)),
                                where=fold.n_pixels > 0)
         with np.errstate(over="ignore"):
-            self.floor = samples / gain**2 * region_thr * fold.pixel_area
+            self.floor = samples / gain**2 * region_thr * fold.pixel_area + impulse_g
         if not np.isfinite(self.floor).all():
             raise InputError(f"the noise floor of G overflows float64 for min_pixels={self.min_pixels!r}, "
                              f"k={self.k!r}, noise_sigma={self.noise_sigma!r} and this baseline")
@@ -406,6 +413,8 @@ class Pipeline:
         b.flags.writeable = False
         if len(frames) < 2:
             self._one_frame = True
+            #: (rate, height) of a one-frame baseline's isolated bright pixels (see ``_impulse_floor``).
+            self._impulses = impulses(frames)
             noise = noise_from_one_frame(frames[0], stacklevel=5)
             if noise is not None:
                 noise.flags.writeable = False
@@ -415,6 +424,42 @@ class Pipeline:
         noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
         noise.flags.writeable = False
         return b, noise
+
+    def _impulse_floor(self, fold) -> np.ndarray:
+        """Per region, the G that another frame's impulses may add (0 without a baseline or impulses).
+
+        A frame holds about as many isolated bright pixels as the no-load
+        frames (:func:`~optitact.steps.impulses`), at other places: a
+        region expecting ``c`` of them (their density, smoothed over a
+        twentieth of the frame, summed over the region) sees at most the
+        Poisson count that
+        is exceeded with probability :data:`IMPULSE_FALSE_CONTACT` (in a
+        region of one frame), each up to the 90th percentile of the
+        impulses' heights, times the region's pixel area. This is
+        conservative where an impulse is a static hot pixel (the baseline
+        subtracts it): a one-frame baseline cannot tell the two apart. Only
+        one-frame baselines get it: a stack's temporal noise map stands for
+        its own frames' impulses.
+        """
+        import cv2
+        from scipy.special import pdtr
+
+        n_regions = len(fold.n_pixels)
+        if self._impulses is None or not self._impulses[0].any():
+            return np.zeros(n_regions)
+        rate, height = self._impulses
+        hits = rate > 0
+        # Their density, pooled over a neighbourhood of several regions: a region's own few impulses
+        # would be a noisy count (its expectation, not its draw, bounds the next frame's).
+        density = cv2.GaussianBlur(rate, (0, 0), max(rate.shape) / 20.0, borderType=cv2.BORDER_REFLECT_101)
+        key = np.unique(fold.label.astype(np.int64) * rate.size + fold.pixel)  # each region pixel once
+        label, pixel = np.divmod(key, rate.size)
+        count = np.bincount(label, density.reshape(-1)[pixel], minlength=n_regions)
+        tall = float(np.quantile(height[hits] / rate[hits], 0.9))  # one impulse's height, 90th percentile
+        k = np.arange(0, 64 + int(10 * count.max()) + 1)
+        cdf = pdtr(k[None, :], count[:, None])  # Poisson CDF of each region's impulse count
+        most = np.argmax(cdf >= 1.0 - IMPULSE_FALSE_CONTACT, axis=1)
+        return np.where(count > 0, most, 0) * tall * fold.pixel_area
 
     def _options(self) -> dict:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,

@@ -28,7 +28,7 @@ from .errors import InputError, KindError, OptitactWarning, ShapeError
 from .readings import Readings
 
 __all__ = ["FILTERS", "G_MIN", "MAX_GREY", "apply_threshold", "check_frames", "denoise", "estimate_noise",
-           "filter_radius", "noise_from_one_frame", "readings_from_moments", "subtract_baseline"]
+           "filter_radius", "impulses", "noise_from_one_frame", "readings_from_moments", "subtract_baseline"]
 
 FILTERS = ("none", "gaussian", "median")
 #: moments) and the squares in the noise estimates then stay far inside float64's range.
@@ -357,3 +357,62 @@ def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
     level = np.pad(m_in.reshape(h - 2, w - 2), 1, mode="edge")
     var = np.interp(level, xp, fp) * (2.0 / 3.0)
     return np.sqrt(2.0 * var)
+
+
+#: A pixel is an impulse when it stands this many residual sigmas above both pairs of neighbours.
+IMPULSE_SIGMAS = 6.0
+
+
+def impulses(frames) -> tuple[np.ndarray, np.ndarray]:
+    r"""Mean height (grey levels) of the isolated bright pixels of no-load frames: hot pixels, fireflies.
+
+    Gaussian noise models the many small fluctuations of a no-load frame;
+    some frames also hold rare isolated bright pixels (a hot or flickering
+    pixel, a cosmic ray, the Monte Carlo outliers of a path-traced frame).
+    Another frame holds as many at other places, and a region's sum then
+    reads them as light: the noise floor of G must include them.
+
+    Parameters
+    ----------
+    frames : (T, H, W) array_like
+        No-load frames (validated by the caller).
+
+    Returns
+    -------
+    rate, height : (H, W) float64 ndarrays
+        Per pixel, the fraction of the frames in which it is an impulse,
+        and the mean over the frames of its height above its neighbours
+        (0 in a frame where it is not an impulse).
+
+    Notes
+    -----
+    A pixel is an impulse where both its horizontal and its vertical
+    second-difference residuals, :math:`x - (x_l + x_r)/2` and
+    :math:`x - (x_u + x_d)/2`, exceed :data:`IMPULSE_SIGMAS` times their
+    robust spread (1.4826 x the median absolute deviation of all residuals,
+    at least half a grey level) : a spot of light spreads over several
+    pixels, an impulse stands alone. Its height is the smaller residual.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> f = np.full((1, 40, 40), 4.0)
+    >>> f[0, 10, 20] = 14.0
+    >>> rate, height = impulses(f)
+    >>> float(rate[10, 20]), float(height[10, 20]), int((rate > 0).sum())
+    (1.0, 10.0, 1)
+    """
+    x = np.asarray(frames, dtype=np.float64)
+    rate, out = np.zeros(x.shape[1:]), np.zeros(x.shape[1:])
+    if x.shape[1] < 3 or x.shape[2] < 3:
+        return rate, out
+    for f in x:
+        c = f[1:-1, 1:-1]
+        rh = c - 0.5 * (f[1:-1, :-2] + f[1:-1, 2:])
+        rv = c - 0.5 * (f[:-2, 1:-1] + f[2:, 1:-1])
+        r = np.minimum(rh, rv)
+        spread = max(1.4826 * float(np.median(np.abs(rh - np.median(rh)))), 0.5)
+        hit = r > IMPULSE_SIGMAS * spread
+        rate[1:-1, 1:-1] += hit
+        out[1:-1, 1:-1] += np.where(hit, r, 0.0)
+    return rate / len(x), out / len(x)

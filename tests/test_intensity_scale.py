@@ -60,6 +60,44 @@ def test_one_frame_baseline_gives_no_phantom_contacts(readings8):
     assert np.flatnonzero(readings8.contact).tolist() == list(LOADED)
 
 
+def _fireflies(frame, seed, n=600, height=(5, 12)):
+    """``frame`` with ``n`` isolated bright pixels at random places (hot pixels, path-tracing fireflies)."""
+    rng = np.random.default_rng(seed)
+    out = frame.copy()
+    rows = rng.integers(1, frame.shape[0] - 1, n)
+    cols = rng.integers(1, frame.shape[1] - 1, n)
+    out[rows, cols] = np.minimum(out[rows, cols] + rng.integers(*height, n), 255).astype(frame.dtype)
+    return out
+
+
+def test_isolated_bright_pixels_make_no_phantom_contacts(scene):
+    """Rendered frames hold fireflies, real cameras hot pixels: each frame at other places. With one
+    no-load frame as baseline only the loaded elements read contact, and with the same forces."""
+    cal, noload, frame = scene
+    pipe = cal.pipeline(baseline=_fireflies(noload, 10))
+    plain = cal.pipeline(baseline=noload).process(frame)
+    for seed in (11, 12, 13):
+        r = pipe.process(_fireflies(frame, seed))
+        assert np.flatnonzero(r.contact).tolist() == list(LOADED), seed
+        np.testing.assert_allclose(cal.forces(r)[0][list(LOADED), 2], cal.forces(plain)[0][list(LOADED), 2],
+                                   rtol=0.03)
+
+
+def test_impulses_are_found_and_spots_are_not():
+    """steps.impulses: single bright pixels over a noisy background are impulses, a 3-px spot is not."""
+    from optitact.steps import impulses
+
+    rng = np.random.default_rng(0)
+    f = rng.normal(20.0, 1.0, (1, 60, 80))
+    f[0, 10, 10] += 12.0
+    f[0, 40, 70] += 9.0
+    rows, cols = np.mgrid[0:60, 0:80]
+    f[0] += 40.0 * np.exp(-((rows - 30) ** 2 + (cols - 30) ** 2) / (2 * 3.0**2))
+    rate, height = impulses(f)
+    assert sorted(map(tuple, np.argwhere(rate > 0))) == [(10, 10), (40, 70)]
+    assert 10.0 < height[10, 10] < 14.0 and 7.0 < height[40, 70] < 11.0
+
+
 def test_one_frame_noise_estimate_matches_the_ccd_model():
     """noise_from_one_frame against the CCD's own noise of frame - baseline (photon + read + rounding)."""
     ccd = CCD()
