@@ -5,7 +5,7 @@ read in memory order) gathers each entry's grey value, compares it with the
 entry's lit level, and adds the lit ones' weighted values to their
 element's sums: G, the centroid's weight and its first moments. The sums
 run in entry order, as ``np.bincount`` adds them in
-:meth:`optitact.Pipeline._fast`'s NumPy path, so both give the same
+:func:`optitact._fastpath.fast_numpy` (the NumPy path), so both give the same
 readings bit for bit.
 
 numba is imported on first use only, never by ``import optitact``; the

@@ -33,15 +33,15 @@ the dome point of grid coordinate ``(x, y)``).
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from . import _kernel
+from ._fastpath import fast_compiled, fast_numpy
+from .baseline import impulse_floor, take_baseline
 from ._validate import integer, positive
 from .camera import Camera
 from .ccd import _frame_bits, dn_ratio
@@ -80,10 +80,6 @@ from .steps import (
 
 # The steps and the region geometry live in optitact.steps and optitact.regions; they are
 # re-exported here, where the pipeline's stages are documented.
-#: Probability that isolated bright pixels (:func:`~optitact.steps.impulses`) alone lift one
-#: region of one frame above its noise floor.
-IMPULSE_FALSE_CONTACT = 1e-5
-
 __all__ = [
     "CHUNK_FRAMES",
     "FILTERS",
@@ -114,45 +110,6 @@ __all__ = [
 METHODS = ("fast", "reference")
 #: Frames processed together by the fast method (bounds its temporary memory).
 CHUNK_FRAMES = 64
-
-
-def take_baseline(items, n: int, *, frame=None) -> tuple[np.ndarray | None, list, Iterator]:
-    """Split the first ``n`` items of a stream off as its no-load baseline.
-
-    Parameters
-    ----------
-    items : iterable
-        Frames, or items holding one (see ``frame``).
-    n : int
-        Frames the baseline averages (>= 0; 0 takes none).
-    frame : callable, optional
-        The frame of an item (default: the item itself), e.g.
-        ``lambda item: item[1]`` for ``(source, frame)`` pairs.
-
-    Returns
-    -------
-    baseline : (n, H, W) ndarray or None
-        The first ``n`` frames stacked (for :meth:`Pipeline.with_baseline`);
-        None when ``n == 0`` or the stream is empty.
-    head : list
-        The first ``n`` items (to process with the new baseline).
-    rest : iterator
-        The items after them.
-
-    Raises
-    ------
-    InputError
-        When the stream ends after 1 to ``n - 1`` items.
-    """
-    n = integer(n, "baseline_frames", minimum=0)
-    rest = iter(items)
-    head = list(itertools.islice(rest, n))
-    if not head:
-        return None, head, rest
-    if len(head) < n:
-        raise InputError(f"the stream ended after {len(head)} frames, before the {n} baseline frames")
-    get = (lambda item: item) if frame is None else frame
-    return np.stack([np.asarray(get(item)) for item in head]), head, rest
 
 
 def _cores() -> int:
@@ -370,7 +327,7 @@ class Pipeline:
         n_false = self.region_weights.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
-        impulse_g = self._impulse_floor(fold)
+        impulse_g = impulse_floor(self._impulses, fold)
         #: Threshold (grey levels) of each entry of :attr:`region_weights`.
         if self.threshold_map is None:
             self.entry_threshold = np.full(len(fold.pixel), self.threshold)
@@ -413,7 +370,7 @@ class Pipeline:
         b.flags.writeable = False
         if len(frames) < 2:
             self._one_frame = True
-            #: (rate, height) of a one-frame baseline's isolated bright pixels (see ``_impulse_floor``).
+            #: (rate, height) of its isolated bright pixels (see :func:`~optitact.baseline.impulse_floor`).
             self._impulses = impulses(frames)
             noise = noise_from_one_frame(frames[0], stacklevel=5)
             if noise is not None:
@@ -424,42 +381,6 @@ class Pipeline:
         noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
         noise.flags.writeable = False
         return b, noise
-
-    def _impulse_floor(self, fold) -> np.ndarray:
-        """Per region, the G that another frame's impulses may add (0 without a baseline or impulses).
-
-        A frame holds about as many isolated bright pixels as the no-load
-        frames (:func:`~optitact.steps.impulses`), at other places: a
-        region expecting ``c`` of them (their density, smoothed over a
-        twentieth of the frame, summed over the region) sees at most the
-        Poisson count that
-        is exceeded with probability :data:`IMPULSE_FALSE_CONTACT` (in a
-        region of one frame), each up to the 90th percentile of the
-        impulses' heights, times the region's pixel area. This is
-        conservative where an impulse is a static hot pixel (the baseline
-        subtracts it): a one-frame baseline cannot tell the two apart. Only
-        one-frame baselines get it: a stack's temporal noise map stands for
-        its own frames' impulses.
-        """
-        import cv2
-        from scipy.special import pdtr
-
-        n_regions = len(fold.n_pixels)
-        if self._impulses is None or not self._impulses[0].any():
-            return np.zeros(n_regions)
-        rate, height = self._impulses
-        hits = rate > 0
-        # Their density, pooled over a neighbourhood of several regions: a region's own few impulses
-        # would be a noisy count (its expectation, not its draw, bounds the next frame's).
-        density = cv2.GaussianBlur(rate, (0, 0), max(rate.shape) / 20.0, borderType=cv2.BORDER_REFLECT_101)
-        key = np.unique(fold.label.astype(np.int64) * rate.size + fold.pixel)  # each region pixel once
-        label, pixel = np.divmod(key, rate.size)
-        count = np.bincount(label, density.reshape(-1)[pixel], minlength=n_regions)
-        tall = float(np.quantile(height[hits] / rate[hits], 0.9))  # one impulse's height, 90th percentile
-        k = np.arange(0, 64 + int(10 * count.max()) + 1)
-        cdf = pdtr(k[None, :], count[:, None])  # Poisson CDF of each region's impulse count
-        most = np.argmax(cdf >= 1.0 - IMPULSE_FALSE_CONTACT, axis=1)
-        return np.where(count > 0, most, 0) * tall * fold.pixel_area
 
     def _options(self) -> dict:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
@@ -551,16 +472,16 @@ class Pipeline:
         if self.method == "reference":
             out = Readings.stack([self._reference(f) for f in stack])
         elif self.kernel == "numba" and self.filter == "none":
-            return self._fast_compiled(stack, single)
+            return fast_compiled(self, stack, single)
         elif single:
-            return self._fast(stack, single=True)
+            return fast_numpy(self, stack, single=True)
         else:
             chunks = [stack[i:i + CHUNK_FRAMES] for i in range(0, len(stack), CHUNK_FRAMES)]
             if self.threads > 1 and len(chunks) > 1:
                 with ThreadPoolExecutor(min(self.threads, len(chunks))) as pool:
-                    parts = list(pool.map(self._fast, chunks))  # in frame order
+                    parts = list(pool.map(lambda c: fast_numpy(self, c), chunks))  # in frame order
             else:
-                parts = [self._fast(c) for c in chunks]
+                parts = [fast_numpy(self, c) for c in chunks]
             out = parts[0] if len(parts) == 1 else Readings.stack(parts)
         return out[0] if single else out
 
@@ -635,116 +556,3 @@ class Pipeline:
                 watch = np.flatnonzero(b + thr >= sat - 1e-9 * max(1.0, sat))
             self._levels[key] = (level, watch, sat)
         return self._levels[key]
-
-    def _kernel_args(self, dtype: np.dtype) -> tuple:
-        """Per-entry arrays of the compiled kernel for ``dtype`` frames (:func:`optitact._kernel.lit_sums`)."""
-        key = ("kernel", dtype.str)
-        if key not in self._levels:
-            level, watch, sat = self._level(dtype)
-            fold = self.region_weights
-            area, wx, wy = (np.ascontiguousarray(w) for w in fold.weights)
-            small = len(fold.pixel) and max(fold.pixel[-1], len(fold.n_pixels)) < 2**31
-            index = np.int32 if small else np.intp  # half the bytes the kernel streams
-            args = (fold.pixel.astype(index), fold.label.astype(index), np.ascontiguousarray(level),
-                    self.entry_baseline, np.ascontiguousarray(self.entry_threshold, np.float64), area, wx, wy,
-                    np.ascontiguousarray(watch, np.intp))
-            self._levels[key] = (args, sat)
-        return self._levels[key]
-
-    def _fast_compiled(self, stack: np.ndarray, single: bool) -> Readings:
-        """The fast method's sums by the compiled kernel (numba), frames split across threads.
-
-        The same sums in the same order as :meth:`_fast`: bit-identical readings.
-        """
-        t_n, n_el = stack.shape[0], self.grids.n_elements
-        flat = np.ascontiguousarray(stack.reshape(t_n, -1))
-        args, sat = self._kernel_args(stack.dtype)
-        out = (np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)),
-               np.zeros((t_n, n_el), bool))
-        exact = stack.dtype.kind == "f"
-        n_threads = min(self.threads, t_n)
-        if n_threads <= 1:
-            _kernel.lit_sums(flat, 0, t_n, args, sat, exact, out)
-        else:
-            bounds = np.linspace(0, t_n, n_threads + 1).astype(int)
-            with ThreadPoolExecutor(n_threads) as pool:
-                for f in [pool.submit(_kernel.lit_sums, flat, int(a), int(b), args, sat, exact, out)
-                          for a, b in itertools.pairwise(bounds)]:
-                    f.result()
-        g_sum, w_sum, mx, my, saturated = out
-        m = np.stack([mx, my], axis=-1)
-        if single:
-            return readings_from_moments(g_sum[0], m[0], saturated[0], self.floor, weight=w_sum[0])
-        return readings_from_moments(g_sum, m, saturated, self.floor, weight=w_sum)
-
-    def _fast(self, stack: np.ndarray, single: bool = False) -> Readings:
-        """The folded sums over the lit entries of a stack (readings ``(T, E)``, or ``(E,)`` if single).
-
-        Only the pixels of the regions are read (in memory order); the lit
-        ones (above the level) are weighted and summed per element, so dark
-        pixels cost one comparison each.
-        """
-        t_n = stack.shape[0]
-        fold = self.region_weights
-        n_ent, n_el = len(fold.pixel), self.grids.n_elements
-        level, watch, sat = self._level(stack.dtype)
-        flat = stack.reshape(t_n, -1)
-        if self.filter == "none":
-            # (T, n_entries) grey values of the region pixels
-            g = flat[0][fold.pixel][None] if t_n == 1 else np.take(flat, fold.pixel, axis=1)
-            idx = np.flatnonzero(g > level)
-            e = idx if t_n == 1 else idx % n_ent
-            raw = g.reshape(-1)[idx]
-            v = raw - np.take(self.entry_baseline, e)
-            hot = idx[raw >= sat]
-            if stack.dtype.kind == "f":  # candidates: the reference's test decides
-                keep = v > np.take(self.entry_threshold, e)
-                idx, e, v = idx[keep], e[keep], v[keep]
-            above = np.maximum(v - np.take(self.entry_threshold, e), 0.0)
-            if watch.size:
-                wt, wi = np.nonzero(g[:, watch] >= sat)
-                hot = np.concatenate([hot, wt * n_ent + watch[wi]])
-        else:
-            idx, v, hot = self._filtered_lit(flat)
-            e = idx % n_ent
-            above = np.maximum(v - np.take(self.entry_threshold, e), 0.0)
-        key = fold.label[e]
-        if t_n > 1:
-            key = key + (idx // n_ent) * n_el
-        size = t_n * n_el
-        area, wx, wy = fold.weights
-        g_sum = np.bincount(key, area[e] * v, minlength=size).reshape(t_n, n_el)
-        w_sum = np.bincount(key, area[e] * above, minlength=size).reshape(t_n, n_el)
-        m = np.empty((t_n, n_el, 2))
-        m[..., 0] = np.bincount(key, wx[e] * above, minlength=size).reshape(t_n, n_el)
-        m[..., 1] = np.bincount(key, wy[e] * above, minlength=size).reshape(t_n, n_el)
-        saturated = np.zeros((t_n, n_el), bool)
-        if hot.size:
-            saturated.reshape(-1)[fold.label[hot % n_ent] + (hot // n_ent) * n_el] = True
-        if single:
-            return readings_from_moments(g_sum[0], m[0], saturated[0], self.floor, weight=w_sum[0])
-        return readings_from_moments(g_sum, m, saturated, self.floor, weight=w_sum)
-
-    def _filtered_lit(self, flat: np.ndarray):
-        """Lit entries after the filter, computed on the crop that holds the regions plus the filter's reach."""
-        h, w = self.camera.shape
-        fold = self.region_weights
-        n_ent = len(fold.pixel)
-        rows, cols = np.divmod(fold.pixel, w)
-        pad = filter_radius(self.filter, self.filter_size)
-        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, h)
-        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, w)
-        local = (rows - r0) * (c1 - c0) + cols - c0
-        base = None if self.baseline is None else self.baseline[r0:r1, c0:c1]
-        sat = _saturation_level(flat.dtype, self._frame_saturation)
-        idx, v, hot = [], [], []
-        for i, frame in enumerate(flat):
-            crop = frame.reshape(h, w)[r0:r1, c0:c1]
-            img = denoise(subtract_baseline(crop, base, clip=False), method=self.filter,
-                          size=self.filter_size)
-            vals = np.take(img, local)
-            lit = np.flatnonzero(vals > self.entry_threshold)
-            idx.append(i * n_ent + lit)
-            v.append(vals[lit])
-            hot.append(i * n_ent + np.flatnonzero(np.take(crop, local) >= sat))
-        return np.concatenate(idx), np.concatenate(v), np.concatenate(hot)

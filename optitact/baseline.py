@@ -1,0 +1,104 @@
+"""The no-load baseline of a stream: splitting it off, and the contact floor its impulses need.
+
+:func:`take_baseline` takes the first frames of a stream as its no-load
+baseline (``optitact process``, :meth:`optitact.Pipeline.stream`, live
+capture). :func:`impulse_floor` is the part of each element's contact floor
+that allows for isolated bright pixels (hot pixels, path-tracing fireflies)
+when the baseline is a single frame (:class:`optitact.Pipeline`).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+
+import numpy as np
+
+from ._validate import integer
+from .errors import InputError
+
+__all__ = ["IMPULSE_FALSE_CONTACT", "impulse_floor", "take_baseline"]
+
+#: Probability that isolated bright pixels (:func:`~optitact.steps.impulses`) alone lift one
+#: region of one frame above its noise floor.
+IMPULSE_FALSE_CONTACT = 1e-5
+
+
+def take_baseline(items, n: int, *, frame=None) -> tuple[np.ndarray | None, list, Iterator]:
+    """Split the first ``n`` items of a stream off as its no-load baseline.
+
+    Parameters
+    ----------
+    items : iterable
+        Frames, or items holding one (see ``frame``).
+    n : int
+        Frames the baseline averages (>= 0; 0 takes none).
+    frame : callable, optional
+        The frame of an item (default: the item itself), e.g.
+        ``lambda item: item[1]`` for ``(source, frame)`` pairs.
+
+    Returns
+    -------
+    baseline : (n, H, W) ndarray or None
+        The first ``n`` frames stacked (for :meth:`Pipeline.with_baseline`);
+        None when ``n == 0`` or the stream is empty.
+    head : list
+        The first ``n`` items (to process with the new baseline).
+    rest : iterator
+        The items after them.
+
+    Raises
+    ------
+    InputError
+        When the stream ends after 1 to ``n - 1`` items.
+    """
+    n = integer(n, "baseline_frames", minimum=0)
+    rest = iter(items)
+    head = list(itertools.islice(rest, n))
+    if not head:
+        return None, head, rest
+    if len(head) < n:
+        raise InputError(f"the stream ended after {len(head)} frames, before the {n} baseline frames")
+    get = (lambda item: item) if frame is None else frame
+    return np.stack([np.asarray(get(item)) for item in head]), head, rest
+
+
+def impulse_floor(impulses: tuple[np.ndarray, np.ndarray] | None, fold) -> np.ndarray:
+    """Per region, the G that another frame's impulses may add (0 without impulses).
+
+    ``impulses`` is ``(rate, height)`` of a one-frame baseline
+    (:func:`~optitact.steps.impulses`); ``fold`` the pipeline's
+    :class:`~optitact.regions.RegionWeights`.
+
+    A frame holds about as many isolated bright pixels as the no-load
+    frames (:func:`~optitact.steps.impulses`), at other places: a
+    region expecting ``c`` of them (their density, smoothed over a
+    twentieth of the frame, summed over the region) sees at most the
+    Poisson count that
+    is exceeded with probability :data:`IMPULSE_FALSE_CONTACT` (in a
+    region of one frame), each up to the 90th percentile of the
+    impulses' heights, times the region's pixel area. This is
+    conservative where an impulse is a static hot pixel (the baseline
+    subtracts it): a one-frame baseline cannot tell the two apart. Only
+    one-frame baselines get it: a stack's temporal noise map stands for
+    its own frames' impulses.
+    """
+    import cv2
+    from scipy.special import pdtr
+
+    n_regions = len(fold.n_pixels)
+    if impulses is None or not impulses[0].any():
+        return np.zeros(n_regions)
+    rate, height = impulses
+    hits = rate > 0
+    # Their density, pooled over a neighbourhood of several regions: a region's own few impulses
+    # would be a noisy count (its expectation, not its draw, bounds the next frame's).
+    density = cv2.GaussianBlur(rate, (0, 0), max(rate.shape) / 20.0, borderType=cv2.BORDER_REFLECT_101)
+    key = np.unique(fold.label.astype(np.int64) * rate.size + fold.pixel)  # each region pixel once
+    label, pixel = np.divmod(key, rate.size)
+    count = np.bincount(label, density.reshape(-1)[pixel], minlength=n_regions)
+    tall = float(np.quantile(height[hits] / rate[hits], 0.9))  # one impulse's height, 90th percentile
+    k = np.arange(0, 64 + int(10 * count.max()) + 1)
+    cdf = pdtr(k[None, :], count[:, None])  # Poisson CDF of each region's impulse count
+    most = np.argmax(cdf >= 1.0 - IMPULSE_FALSE_CONTACT, axis=1)
+    return np.where(count > 0, most, 0) * tall * fold.pixel_area
