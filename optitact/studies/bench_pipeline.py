@@ -115,11 +115,12 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
         ref = fast.replace(method="reference")
         numpy_pipe = fast.replace(kernel="numpy")
         one_thread = fast.replace(threads=1)
+        all_threads = fast.replace(threads=_cores())
         long = np.concatenate([frames] * max(1, -(-64 // n_frames)))  # a long stack: >= 64 frames
         sub = frames[:n_reference]
         t_fast, t_batch, t_floor, t_ref, t_numpy, t_b1, t_bn = [], [], [], [], [], [], []
         thr = int(np.ceil(fast.threshold + baseline.mean()))
-        for p in (fast, numpy_pipe, one_thread):
+        for p in (fast, numpy_pipe, one_thread, all_threads):
             p.process(frames[:2])  # warm caches (level maps, the compiled kernel)
         for _ in tqdm(range(repeats), desc=f"bench pipeline {width}x{height}", unit="repeat",
                       file=sys.stderr):
@@ -127,7 +128,7 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
             _clock(t_numpy, _each, numpy_pipe, frames)
             _clock(t_batch, fast.process, frames)
             _clock(t_b1, one_thread.process, long)
-            _clock(t_bn, fast.process, long)
+            _clock(t_bn, all_threads.process, long)
             t = time.perf_counter()
             for f in frames:
                 np.count_nonzero(f > thr)
