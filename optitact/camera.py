@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from typing import TYPE_CHECKING, ClassVar
@@ -88,7 +89,7 @@ def check_frame_size(width: int, height: int, source: str = "frame") -> None:
 CAMERA_MODELS: dict[str, type] = {}
 
 
-class Camera:
+class Camera(ABC):
     """Common interface of the camera models: intrinsics, distortion and pose, seen through the dome.
 
     Subclasses are frozen dataclasses with ``width`` and ``height`` (pixels)
@@ -111,22 +112,22 @@ class Camera:
 
     # ------------------------------------------------------------------ what a model provides
     @property
+    @abstractmethod
     def rotation(self) -> np.ndarray:
         """(3, 3) rotation from the dome frame to the camera frame (OpenCV's ``R``)."""
-        raise NotImplementedError
 
     @property
+    @abstractmethod
     def position(self) -> np.ndarray:
         """(3,) the camera's projection centre in the dome frame (mm): ``-R^T t``."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _pixel_from_camera_ray(self, d: np.ndarray) -> np.ndarray:
         """Pixels ``(row, col)`` of camera-frame directions ``(..., 3)``; NaN where the model sees nothing."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _camera_ray_from_pixel(self, p: np.ndarray) -> np.ndarray:
         """Unit camera-frame directions of pixels ``(..., 2)``; NaN where no ray maps there."""
-        raise NotImplementedError
 
     def to_dict(self) -> dict:
         """Return the parameters as a JSON-friendly dict (with its ``model`` key)."""
