@@ -104,6 +104,9 @@ def _lit_sums(flat, t0, t1, pixel, label, level, base, thr, area, wx, wy, watch,
 
 def _compile():
     """The jitted kernel (compiled per frame dtype on first call; cached on disk)."""
+    fn = _compiled.get("lit_sums")
+    if fn is not None:  # every frame after the first: no lock
+        return fn
     with _lock:
         if "lit_sums" not in _compiled:
             numba = _numba()
