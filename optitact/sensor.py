@@ -79,6 +79,18 @@ class DomeSensor:
     preload : float
         Normal preload per element (N), default 0; keeps cone tips lightly
         touching as on the real sensor.
+    element_offsets : tuple of (float, float), optional
+        As built: each element's displacement from its design position (mm,
+        geodesic, in the design position's element-local x, y), one pair per
+        element, each at most ``column_diameter`` long; default ``()`` (every
+        element where the design puts it). Registration fits them
+        (:func:`optitact.register` with ``fit_offsets=True``); every map,
+        region and render uses the displaced centres.
+    element_gain : tuple of float, optional
+        As built: each element's relative brightness (rubber, cone tips, the
+        rim light reaching it), one positive factor per element, from 1/16 to
+        16; default ``()`` (all 1). Renders scale the element's patch radiance
+        by it; registration estimates it from equal presses.
 
     Examples
     --------
@@ -103,6 +115,8 @@ class DomeSensor:
     youngs_modulus: float = 1.0
     poisson_ratio: float = 0.49
     preload: float = field(default=0.0)
+    element_offsets: tuple[tuple[float, float], ...] = ()
+    element_gain: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         # Store plain Python numbers, so that to_dict() is always JSON-ready.
@@ -157,6 +171,57 @@ class DomeSensor:
                 f"{self.cone_circle_radius} mm circle)"
             )
 
+        self._check_as_built()
+
+    def _check_as_built(self) -> None:
+        """Validate and normalise ``element_offsets`` and ``element_gain`` (plain tuples of floats)."""
+        n = self.n_elements
+        for name, width in (("element_offsets", 2), ("element_gain", 1)):
+            value = getattr(self, name)
+            if value is None or (hasattr(value, "__len__") and len(value) == 0):
+                object.__setattr__(self, name, ())
+                continue
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
+                raise TypeError(f"{name} must be a sequence (one entry per element) or (), got "
+                                f"{type(value).__name__}")
+            try:
+                arr = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise TypeError(f"{name} must hold real numbers, got {value!r:.80}") from exc
+            want = (n, 2) if width == 2 else (n,)
+            if arr.shape != want:
+                raise InputError(f"{name} must have shape {want} (one entry per element of the {n}), got "
+                                 f"{arr.shape}")
+            if not np.isfinite(arr).all():
+                raise InputError(f"{name} must be finite, got {arr[~np.isfinite(arr)][:3].tolist()}")
+            if width == 2:
+                worst = float(np.linalg.norm(arr, axis=1).max())
+                if worst > self.column_diameter:
+                    raise InputError(f"element_offsets must be at most column_diameter "
+                                     f"({self.column_diameter:g} mm) long (a manufacturing tolerance), got "
+                                     f"{worst:.4g} mm")
+                value = tuple((float(a), float(b)) for a, b in arr)
+            else:
+                if arr.min() < 1.0 / 16.0 or arr.max() > 16.0:
+                    raise InputError(f"element_gain must lie from 1/16 to 16, got values in "
+                                     f"[{arr.min():.4g}, {arr.max():.4g}]")
+                value = tuple(float(a) for a in arr)
+            object.__setattr__(self, name, value)
+
+    @property
+    def gains(self) -> np.ndarray:
+        """Each element's relative brightness, shape (N,): :attr:`element_gain`, or ones."""
+        if self.element_gain:
+            return np.asarray(self.element_gain, dtype=np.float64)
+        return np.ones(self.n_elements)
+
+    @property
+    def as_designed(self) -> DomeSensor:
+        """The same sensor without its as-built offsets and gains."""
+        from dataclasses import replace
+
+        return replace(self, element_offsets=(), element_gain=())
+
     @classmethod
     def default(cls) -> DomeSensor:
         """Return the 41-element sensor with the published dimensions."""
@@ -168,6 +233,12 @@ class DomeSensor:
         d = asdict(self)
         d["ring_counts"] = list(self.ring_counts)
         d["ring_polar_deg"] = list(self.ring_polar_deg)
+        # As-built fields only when set: a designed sensor's dict (and every fingerprint of it) is as before.
+        for name in ("element_offsets", "element_gain"):
+            if getattr(self, name):
+                d[name] = [list(v) if isinstance(v, tuple) else v for v in getattr(self, name)]
+            else:
+                del d[name]
         return d
 
     @classmethod
@@ -177,6 +248,10 @@ class DomeSensor:
         for key in ("ring_counts", "ring_polar_deg"):
             if key in kw:
                 kw[key] = tuple(kw[key])
+        if "element_offsets" in kw and isinstance(kw["element_offsets"], list):
+            kw["element_offsets"] = tuple(tuple(v) if isinstance(v, list) else v for v in kw["element_offsets"])
+        if "element_gain" in kw and isinstance(kw["element_gain"], list):
+            kw["element_gain"] = tuple(kw["element_gain"])
         return cls(**kw)
 
     # ----------------------------------------------------------------- derived geometry
@@ -220,16 +295,26 @@ class DomeSensor:
         return _frozen(np.repeat(np.arange(len(self.ring_counts)), self.ring_counts))
 
     @cached_property
+    def _design_angles(self) -> tuple[np.ndarray, np.ndarray]:
+        """Polar angle and azimuth (rad) of the design positions."""
+        polar = np.deg2rad(np.repeat(np.asarray(self.ring_polar_deg, float), self.ring_counts))
+        az = np.concatenate([2.0 * np.pi * np.arange(n) / n for n in self.ring_counts])
+        return polar, az
+
+    @cached_property
     def element_polar(self) -> np.ndarray:
-        """Polar angle of each element from the dome axis (rad), shape (N,)."""
-        return _frozen(np.deg2rad(np.repeat(np.asarray(self.ring_polar_deg, float),
-                                            self.ring_counts)))
+        """Polar angle of each element centre from the dome axis (rad), shape (N,)."""
+        z = self.element_frames[:, 2, :]
+        return _frozen(np.arccos(np.clip(z[:, 2], -1.0, 1.0)) if self.element_offsets
+                       else self._design_angles[0].copy())
 
     @cached_property
     def element_azimuth(self) -> np.ndarray:
-        """Azimuth of each element, counter-clockwise from +x (rad), shape (N,)."""
-        az = np.concatenate([2.0 * np.pi * np.arange(n) / n for n in self.ring_counts])
-        return _frozen(az)
+        """Azimuth of each element centre, counter-clockwise from +x (rad), shape (N,)."""
+        if not self.element_offsets:
+            return _frozen(self._design_angles[1].copy())
+        z = self.element_frames[:, 2, :]
+        return _frozen(np.mod(np.arctan2(z[:, 1], z[:, 0]), 2.0 * np.pi))
 
     @cached_property
     def element_positions(self) -> np.ndarray:
@@ -244,13 +329,26 @@ class DomeSensor:
         tangent plane and normalised, ``y = z x x``. A vector ``v_local`` maps
         to global as ``frames[i].T @ v_local``.
         """
-        th, ph = self.element_polar, self.element_azimuth
+        th, ph = self._design_angles
         z = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+        frames = self._frames_at(z)
+        if self.element_offsets:  # as built: the frame at the displaced centre (exponential map)
+            off = np.asarray(self.element_offsets)
+            t = off[:, 0:1] * frames[:, 0, :] + off[:, 1:2] * frames[:, 1, :]
+            s = np.linalg.norm(off, axis=1, keepdims=True)
+            ang = s / self.outer_radius
+            z = np.cos(ang) * z + np.sin(ang) * t / np.where(s > 0, s, 1.0)
+            frames = self._frames_at(z / np.linalg.norm(z, axis=1, keepdims=True))
+        return _frozen(frames)
+
+    @staticmethod
+    def _frames_at(z: np.ndarray) -> np.ndarray:
+        """Element-local axes (N, 3, 3) for outward normals ``z``."""
         ex = np.array([1.0, 0.0, 0.0])
         x = ex - (z @ ex)[:, None] * z
         x /= np.linalg.norm(x, axis=-1, keepdims=True)
         y = np.cross(z, x)
-        return _frozen(np.stack([x, y, z], axis=1))
+        return np.stack([x, y, z], axis=1)
 
     @cached_property
     def cone_offsets(self) -> np.ndarray:

@@ -203,6 +203,28 @@ def _mi_mesh(mi, name: str, data, props) -> object:
 _SENSOR_REGISTERED: set = set()
 
 
+def _patch_groups(sensor: DomeSensor, contacts: Contacts, settings_reflectance: float):
+    """``(name, contacts, gain)`` per patch mesh: one mesh, or one per distinct element gain (as built).
+
+    An element's gain (:attr:`DomeSensor.element_gain`) scales its rubber's
+    reflectance, so its spots' brightness; the product must stay at most 1.
+    """
+    if not sensor.element_gain:
+        yield "patches", contacts, 1.0
+        return
+    from dataclasses import replace
+
+    gains = sensor.gains
+    if settings_reflectance * gains.max() > 1.0:
+        raise InputError(f"transport='path' scales the rubber's reflectance ({settings_reflectance:g}) by each "
+                         f"element's gain; the largest gain {gains.max():.4g} makes it exceed 1 (at most "
+                         f"{1.0 / settings_reflectance:.4g}): render with transport='two_stage' or lower "
+                         f"rubber_reflectance")
+    for i, g in enumerate(np.unique(gains[contacts.in_contact.any(axis=1)])):
+        keep = (gains == g)[:, None]
+        yield f"patches_{i}", replace(contacts, radii=np.where(keep, contacts.radii, 0.0)), float(g)
+
+
 def register_fisheye(mi) -> str:
     """Register the sensor plugins for the active variant; return the full-frame fisheye one.
 
@@ -533,15 +555,17 @@ def build_scene(mi, sensor: DomeSensor, camera: Camera, contacts: Contacts,
     props["emitter"] = mi.load_dict({"type": "area", "radiance": {
         "type": "rgb", "value": float(settings.rim_radiance)}})
     objects["rim_light"] = _mi_mesh(mi, "rim_light", shell["light"], props)
-    patches = patch_mesh(contacts, radius=sensor.outer_radius, inset=settings.patch_inset,
-                         segments=settings.patch_segments)
-    if patches is not None:
+    for name, part, gain in _patch_groups(sensor, contacts, settings.rubber_reflectance):
+        patches = patch_mesh(part, radius=sensor.outer_radius, inset=settings.patch_inset,
+                             segments=settings.patch_segments)
+        if patches is None:
+            continue
         props = mi.Properties()
         props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": {
             "type": "diffuse",
-            "reflectance": {"type": "rgb", "value": float(settings.rubber_reflectance)}}})
+            "reflectance": {"type": "rgb", "value": float(settings.rubber_reflectance * gain)}}})
         v, f, _ = patches
-        objects["patches"] = _mi_mesh(mi, "patches", (v, f, None), props)
+        objects[name] = _mi_mesh(mi, name, (v, f, None), props)
 
     film = {"type": "hdrfilm", "width": camera.width, "height": camera.height,
             "pixel_format": "luminance", "rfilter": {"type": "box"}, "sample_border": False}

@@ -83,6 +83,8 @@ def render_two_stage(sensor: DomeSensor, contacts: Contacts, *, camera: FisheyeC
     if cov["patch"].size == 0:
         return out.reshape(camera.shape).astype(np.float32)
     le = table.radiance_of(cov["theta"], cov["radius"], cov["element"]) * settings.rim_radiance
+    if sensor.element_gain:  # as built: each element's own brightness
+        le = le * sensor.gains[cov["element"]]
     n = out.size
     covered = np.bincount(cov["pixel"], weights=cov["coverage"], minlength=n)
     light = np.bincount(cov["pixel"], weights=le[cov["patch"]] * cov["transmitted"], minlength=n)

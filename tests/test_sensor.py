@@ -318,7 +318,8 @@ def test_json_round_trip(kwargs):
 
 def test_to_dict_contents(sensor):
     d = sensor.to_dict()
-    assert set(d) == {f.name for f in dataclasses.fields(DomeSensor)}
+    as_built = {"element_offsets", "element_gain"}  # only written when set
+    assert set(d) == {f.name for f in dataclasses.fields(DomeSensor)} - as_built
     assert d["ring_counts"] == [1, 8, 16, 16]
     assert d["ring_polar_deg"] == [0.0, 22.5, 45.0, 67.5]
     assert d["outer_radius"] == 20.0
@@ -442,3 +443,51 @@ def test_from_dict_not_a_dict(bad):
 def test_from_dict_validates_values():
     with pytest.raises(InputError, match=r"poisson_ratio must be in"):
         DomeSensor.from_dict({"poisson_ratio": 0.5})
+
+
+# ----------------------------------------------------------------------------- as built
+def test_element_offsets_move_centres_by_the_exponential_map(sensor):
+    rng = np.random.default_rng(3)
+    off = rng.normal(0.0, 0.15, (sensor.n_elements, 2))
+    built = DomeSensor(element_offsets=off)
+    # the design frames' logarithmic map of the displaced centres gives the offsets back
+    back = sensor.tangent_offset(np.arange(sensor.n_elements), built.element_positions)
+    np.testing.assert_allclose(back, off, atol=1e-12)
+    # geodesic distance = offset length
+    cosang = np.sum(built.element_positions * sensor.element_positions, axis=1) / sensor.outer_radius ** 2
+    np.testing.assert_allclose(sensor.outer_radius * np.arccos(np.clip(cosang, -1, 1)),
+                               np.linalg.norm(off, axis=1), atol=1e-6)
+    f = built.element_frames  # still orthonormal, z the outward normal at the new centre
+    np.testing.assert_allclose(np.einsum("nij,nkj->nik", f, f), np.broadcast_to(np.eye(3), f.shape), atol=1e-12)
+    np.testing.assert_allclose(f[:, 2] * sensor.outer_radius, built.element_positions, atol=1e-12)
+    z = f[:, 2]
+    np.testing.assert_allclose(np.cos(built.element_polar), z[:, 2], atol=1e-12)
+    assert built.as_designed == sensor
+
+
+def test_as_built_fields_round_trip_and_stay_out_of_designed_dicts(sensor):
+    rng = np.random.default_rng(4)
+    built = DomeSensor(element_offsets=rng.normal(0, 0.1, (41, 2)), element_gain=rng.uniform(0.8, 1.2, 41))
+    d = built.to_dict()
+    assert len(d["element_offsets"]) == 41 and len(d["element_gain"]) == 41
+    assert DomeSensor.from_dict(json.loads(json.dumps(d))) == built
+    assert "element_gain" not in sensor.to_dict()
+    np.testing.assert_array_equal(sensor.gains, np.ones(41))
+    np.testing.assert_allclose(built.gains, built.element_gain)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"element_gain": [1.0] * 40}, "shape"),
+    ({"element_gain": [0.0] * 41}, "1/16"),
+    ({"element_gain": [float("nan")] * 41}, "finite"),
+    ({"element_offsets": [[0.0, 0.0]] * 41 + [[0, 0]]}, "shape"),
+    ({"element_offsets": [[3.0, 0.0]] * 41}, "column_diameter"),
+])
+def test_bad_as_built_fields_are_refused(kw, match):
+    with pytest.raises(ValueError, match=match):
+        DomeSensor(**kw)
+
+
+def test_as_built_field_of_the_wrong_type_is_a_type_error():
+    with pytest.raises(TypeError, match="element_gain"):
+        DomeSensor(element_gain=1.5)

@@ -236,3 +236,27 @@ def test_bench_render_uses_the_table_it_is_given(tiny_table, monkeypatch):
     assert [r["mode"] for r in out["rows"]] == ["two_stage"]
     assert out["rows"][0]["g_rel_error"] >= 0
     assert out["headline"]["best_mode"] in ("two_stage", None)  # a mode alone, at or off the target
+
+
+def test_element_gain_scales_each_elements_spots(tiny_table):
+    """As built: an element's gain multiplies its patches' radiance, exactly in two-stage
+    (deterministic) and within Monte Carlo noise in path tracing (it scales the rubber's reflectance)."""
+    gains = np.ones(41)
+    gains[[5, 20]] = (1.2, 0.7)
+    built = optitact.DomeSensor(element_gain=gains)
+    bg = np.zeros(CAM.shape, np.float32)
+    contacts = contact_patches(SENSOR, LOAD)
+    plain = render_two_stage(SENSOR, contacts, camera=CAM, table=tiny_table, background=bg, settings=SETTINGS)
+    lit = render_two_stage(built, contacts, camera=CAM, table=tiny_table, background=bg, settings=SETTINGS)
+    near = CAM.project(SENSOR.element_positions[LOADED], SENSOR)
+    rows, cols = np.mgrid[:CAM.height, :CAM.width]
+    mask = spot_pixels(SENSOR, CAM, LOAD)
+    for e, (r, c) in zip(LOADED, near, strict=True):
+        disc = np.hypot(rows - r, cols - c) < 12
+        assert lit[disc].sum() / plain[disc].sum() == pytest.approx(gains[e], rel=1e-6)
+        if e == 20:
+            path_plain = render(SENSOR, LOAD, camera=CAM, spp=512, seed=1, pixels=mask, background=bg)
+            path_lit = render(built, LOAD, camera=CAM, spp=512, seed=1, pixels=mask, background=bg)
+            assert path_lit[disc].sum() / path_plain[disc].sum() == pytest.approx(gains[e], rel=0.02)
+    with pytest.raises(ValueError, match="exceed 1"):
+        render(optitact.DomeSensor(element_gain=np.full(41, 1.5)), LOAD, camera=CAM, spp=1)
