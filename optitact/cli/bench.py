@@ -1,4 +1,4 @@
-"""``optitact bench render|pipeline|accuracy|stability``: one JSON object on stdout.
+"""``optitact bench render|pipeline|accuracy|stability|realism``: one JSON object on stdout.
 
 The benchmarks themselves live in the studies layer (:mod:`optitact.studies`),
 imported when a bench runs.
@@ -109,7 +109,33 @@ def add_parsers(sub) -> None:
     bstab.add_argument("--cases", type=positive_int, default=10000,
                        help="generated stress cases (default 10000)")
 
-    for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab)):
+    breal = bsub.add_parser(
+        "realism", parents=[seed_parent("seed of the first stand-in sensor"), variant_parent(),
+                            plot_parent("save force errors against presses and registration errors as PNG")],
+        help="a stand-in for a real sensor: registration and press calibrations against its own floor",
+        description="Draw stand-in sensors with manufacturing and assembly errors the code under test is not "
+                    "told (camera off axis and tilted, focal length, principal point, fisheye distortion, "
+                    "dome radius and shell, element positions and brightness, non-uniform rim light), render "
+                    "their frames (two-stage, their own camera), register each one from a no-load frame "
+                    "and six frames of equal presses, and report the pose, focal length, offset and gain "
+                    "errors against the hidden truth. On the first --force-sensors of them, report held-out "
+                    "force errors (RMSE in % of full scale per axis) with the nominal model and the shipped "
+                    "calibration, after registration, after calibrations from N gauge presses per element "
+                    "(refined from the shipped one and from scratch), and with the stand-in's own synthetic "
+                    "calibration (the matched floor). The first run path-traces the no-load frame of the "
+                    "default camera once (about a minute, cached); then about a minute per force stand-in.")
+    breal.add_argument("--sensors", type=positive_int, default=10,
+                       help="stand-ins registered (default 10)")
+    breal.add_argument("--force-sensors", type=int, default=2,
+                       help="of those, how many get the force study (default 2)")
+    breal.add_argument("--presses", type=positive_int, nargs="+", default=[5, 10, 20, 50], metavar="N",
+                       help="presses per element of the measured calibrations (default 5 10 20 50)")
+    breal.add_argument("--test-frames", type=positive_int, default=40,
+                       help="held-out frames per stand-in, every element loaded (default 40)")
+    breal.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
+
+    for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab),
+                    ("realism", breal)):
         p.set_defaults(run=BENCHES[name])
 
 
@@ -145,6 +171,19 @@ def _stability(args) -> dict:
     return bench_stability(cases=args.cases, seed=args.seed, progress=True)
 
 
+def _realism(args) -> dict:
+    from optitact.studies.bench_realism import bench_realism
+
+    if args.force_sensors < 0 or args.force_sensors > args.sensors:
+        from optitact.errors import InputError
+
+        raise InputError(f"--force-sensors must be from 0 to --sensors ({args.sensors}), got "
+                         f"{args.force_sensors}")
+    return bench_realism(sensors=args.sensors, force_sensors=args.force_sensors, ns=tuple(args.presses),
+                         test_frames=args.test_frames, size=size(args.size), seed=args.seed,
+                         variant=args.variant, plot=args.plot)
+
+
 def _printing(bench):
     def run(args) -> int:
         if getattr(args, "plot", None) is not None:  # before minutes of work, not after
@@ -160,4 +199,4 @@ def _printing(bench):
 
 #: ``optitact bench NAME`` -> the command.
 BENCHES = {"render": _printing(_render), "pipeline": _printing(_pipeline), "accuracy": _printing(_accuracy),
-           "stability": _printing(_stability)}
+           "stability": _printing(_stability), "realism": _printing(_realism)}

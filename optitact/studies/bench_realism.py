@@ -1,0 +1,440 @@
+"""Benchmark: a stand-in for a real sensor, registered and calibrated from presses, against its own floor.
+
+Not library code: ``optitact bench realism`` runs it.
+
+The stand-in is the default sensor as a workshop would build it, drawn from a
+seed and not told to the code under test (:func:`draw_standin`):
+
+* camera: an OpenCV fisheye (Kannala-Brandt k1..k4 of a fibrescope) 0.1-0.5 mm
+  off the dome axis and 0.5-2 deg tilted, focal length +-3 %, principal point
+  +-8 px;
+* dome: outer radius +-1 %, shell thickness +-5 %;
+* elements: positions off by up to 0.2 mm, brightness +-15 %;
+* rim light: a low-order azimuthal non-uniformity ``1 + s (a1 cos(phi - p1) +
+  a2 cos 2(phi - p2))`` (a1 up to 10 %, a2 up to 5 %), felt fully at the rim
+  (``s = theta / 90 deg``) and not at the apex, where light arrives from every
+  side. It multiplies the light reaching each element (folded into the
+  element's gain) and the dark no-load background's rim glow.
+
+Frames are rendered with the two-stage light transport through the
+stand-in's own camera and geometry and exposed with the nominal CCD model.
+The user's knowledge of the camera is what ``cv2.fisheye.calibrate`` on a
+checkerboard gives: the true intrinsics with calibration errors (focal length
+0.1 %, principal point 0.3 px, distortion coefficients 2 % of their size) and
+no pose. Then, per stand-in:
+
+1. ``nominal``: the default sensor and camera with the shipped calibration
+   (what a user gets today);
+2. ``registered``: :func:`optitact.register` on a no-load frame and six frames
+   pressing every element once at one gauge setting (pose, element offsets and
+   gains), with the shipped calibration transferred to the result;
+3. ``presses``: the registered pipeline and a calibration fitted from ``N``
+   single-element gauge presses per element (half normal, half inclined; the
+   gauge reads 1 % of reading noise), refined from the transferred shipped
+   calibration and from scratch;
+4. ``matched``: the floor: the stand-in's own synthetic calibration (its true
+   sensor and camera, a 200-frame design rendered the same way).
+
+Each is scored on the same held-out frames (independent loads on every
+element, ``calib.sets.design_forces`` with seeds no other step uses) with
+:func:`optitact.calib.held_out.press_report` (RMSE in % of full scale).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from optitact._validate import integer
+from optitact.camera import Camera, FisheyeCamera
+from optitact.camera_models import OpenCVFisheyeCamera, pose_from_position
+from optitact.errors import InputError, OptitactWarning
+from optitact.sensor import DomeSensor
+
+__all__ = ["StandIn", "draw_standin", "bench_realism", "REGISTRATION_PRESSES"]
+
+#: Elements pressed in each registration frame: all 41 once, spread over the rings (7 per frame).
+REGISTRATION_PRESSES = ((0, 2, 5, 11, 14, 27, 33), (1, 4, 7, 9, 17, 21, 30, 37), (3, 6, 13, 19, 25, 29, 40),
+                        (8, 10, 15, 23, 26, 34, 38), (12, 16, 20, 24, 28, 31, 35), (18, 22, 32, 36, 39))
+#: The gauge setting of the registration presses (N, straight down).
+REGISTRATION_FORCE_N = 0.6
+#: Frames averaged into each pipeline's no-load baseline.
+BASELINE_FRAMES = 4
+#: Frames of the stand-in's own synthetic calibration (the matched floor).
+MATCHED_FRAMES = 200
+
+
+@dataclass(frozen=True)
+class StandIn:
+    """A stand-in sensor: the truth (as built) and what its user is told.
+
+    Attributes
+    ----------
+    sensor : DomeSensor
+        As built: dome radius and shell, ``element_offsets``, ``element_gain``
+        (brightness times rim light).
+    camera : OpenCVFisheyeCamera
+        The true camera, pose included.
+    intrinsics : OpenCVFisheyeCamera
+        The user's checkerboard calibration: the true intrinsics with small
+        errors, on the dome axis at the nominal height (no pose known).
+    rim : tuple of float
+        ``(a1, p1, a2, p2)`` of the rim light's non-uniformity.
+    brightness : (N,) ndarray
+        The elements' own brightness (without the rim light).
+    """
+
+    sensor: DomeSensor
+    camera: OpenCVFisheyeCamera
+    intrinsics: OpenCVFisheyeCamera
+    rim: tuple
+    brightness: np.ndarray
+
+    def rim_factor(self, polar, azimuth) -> np.ndarray:
+        """The rim light's relative strength at dome points ``(polar, azimuth)`` (rad)."""
+        a1, p1, a2, p2 = self.rim
+        s = np.clip(np.asarray(polar) / (np.pi / 2), 0.0, 1.0)
+        return 1.0 + s * (a1 * np.cos(azimuth - p1) + a2 * np.cos(2.0 * (azimuth - p2)))
+
+
+def draw_standin(seed: int, size: tuple[int, int] = (640, 480)) -> StandIn:
+    """The stand-in sensor of ``seed`` (see the module docstring for the tolerances)."""
+    rng = np.random.default_rng([int(seed), 18])
+    w, h = size
+    nominal = DomeSensor.default()
+    n = nominal.n_elements
+    r_off = 0.2 * np.sqrt(rng.uniform(0, 1, n))  # uniform over a 0.2 mm disc
+    a_off = rng.uniform(0, 2 * np.pi, n)
+    offsets = np.stack([r_off * np.cos(a_off), r_off * np.sin(a_off)], axis=1)
+    brightness = rng.uniform(0.85, 1.15, n)
+    rim = (rng.uniform(0, 0.10), rng.uniform(0, 2 * np.pi), rng.uniform(0, 0.05), rng.uniform(0, np.pi))
+    shaped = DomeSensor(outer_radius=nominal.outer_radius * (1 + rng.uniform(-0.01, 0.01)),
+                        shell_thickness=nominal.shell_thickness * (1 + rng.uniform(-0.05, 0.05)),
+                        element_offsets=offsets)
+    probe = StandIn(shaped, None, None, rim, brightness)
+    gains = brightness * probe.rim_factor(shaped.element_polar, shaped.element_azimuth)
+    sensor = DomeSensor(outer_radius=shaped.outer_radius, shell_thickness=shaped.shell_thickness,
+                        element_offsets=offsets, element_gain=gains)
+    f0 = (min(w, h) / 2) / math.radians(70.0)  # the default equidistant camera's focal length (px/rad)
+    fx = f0 * (1 + rng.uniform(-0.03, 0.03))
+    fy = fx * (1 + rng.uniform(-0.003, 0.003))
+    cx, cy = (w - 1) / 2 + rng.uniform(-8, 8), (h - 1) / 2 + rng.uniform(-8, 8)
+    dist = (rng.uniform(-0.05, 0.05), rng.uniform(-0.02, 0.02), rng.uniform(-0.005, 0.005),
+            rng.uniform(-0.002, 0.002))
+    off, a = rng.uniform(0.1, 0.5), rng.uniform(0, 2 * np.pi)
+    tilt, b = math.radians(rng.uniform(0.5, 2.0)), rng.uniform(0, 2 * np.pi)
+    rvec = (tilt * math.cos(b), tilt * math.sin(b), rng.uniform(-0.01, 0.01))
+    z = FisheyeCamera(width=w, height=h).z
+    camera = OpenCVFisheyeCamera(w, h, fx=fx, fy=fy, cx=cx, cy=cy, dist=dist,
+                                 **pose_from_position((off * math.cos(a), off * math.sin(a), z), rvec))
+    # what cv2.fisheye.calibrate on a checkerboard tells the user: small errors, no pose
+    intrinsics = OpenCVFisheyeCamera(w, h, fx=fx * (1 + rng.normal(0, 0.001)),
+                                     fy=fy * (1 + rng.normal(0, 0.001)),
+                                     cx=cx + rng.normal(0, 0.3), cy=cy + rng.normal(0, 0.3),
+                                     dist=tuple(float(d * (1 + rng.normal(0, 0.02))) for d in dist),
+                                     **pose_from_position((0.0, 0.0, z)))
+    return StandIn(sensor, camera, intrinsics, tuple(float(v) for v in rim), brightness)
+
+
+# ----------------------------------------------------------------------------- rendering the stand-in
+class _Frames:
+    """Renders and exposes frames of one stand-in (two-stage, its own camera and geometry)."""
+
+    def __init__(self, standin: StandIn, *, variant=None):
+        from optitact.ccd import CCD
+        from optitact.render.twostage import noload_radiance, shipped_table
+
+        self.standin = standin
+        designed = DomeSensor.default()
+        # The guided light reaching a patch is the designed dome's (the table is measured once for it; the
+        # stand-in's +-1 % radius and +-5 % shell change it far less than its +-15 % element gains).
+        self.table = shipped_table(designed, FisheyeCamera(width=standin.camera.width,
+                                                           height=standin.camera.height))
+        bg = noload_radiance(designed, standin.camera, variant=variant)
+        rows, cols = np.mgrid[:standin.camera.height, :standin.camera.width]
+        # the no-load frame is dark but for the rim glow: the rim light's non-uniformity scales it by the
+        # azimuth round the image of the dome axis
+        axis = standin.camera.project(np.array([[0.0, 0.0, standin.sensor.outer_radius]]), standin.sensor)[0]
+        phi = np.arctan2(rows - axis[0], cols - axis[1])  # dome x along columns, y along rows
+        self.background = (bg * standin.rim_factor(np.pi / 2, phi)).astype(np.float32)
+        self.ccd = CCD()
+
+    def radiance(self, forces: np.ndarray) -> np.ndarray:
+        from optitact.render import render
+
+        return render(self.standin.sensor, forces, camera=self.standin.camera, transport="two_stage",
+                      table=self.table, background=self.background)
+
+    def frame(self, forces: np.ndarray, seed: int) -> np.ndarray:
+        return self.ccd.expose(self.radiance(forces), seed=seed)
+
+    def baseline(self, seed: int) -> np.ndarray:
+        empty = self.radiance(np.zeros((self.standin.sensor.n_elements, 3)))
+        return np.stack([self.ccd.expose(empty, seed=s) for s in
+                         np.random.SeedSequence([seed, 7]).generate_state(BASELINE_FRAMES)])
+
+
+def _readings(frames: _Frames, pipelines: dict, forces: np.ndarray, seed: int, desc: str, progress: bool):
+    """Render every frame of ``forces`` (T, E, 3) once and read it with every pipeline: {name: Readings}."""
+    from tqdm import tqdm
+
+    from optitact.readings import Readings
+
+    seeds = np.random.SeedSequence([seed, 11]).generate_state(len(forces))
+    out = {k: [] for k in pipelines}
+    for f, s in tqdm(zip(forces, seeds, strict=True), total=len(forces), desc=desc, unit="frame",
+                     file=sys.stderr, disable=not progress, leave=False):
+        img = frames.frame(f, int(s))
+        for k, p in pipelines.items():
+            out[k].append(p.process(img))
+    return {k: Readings(np.stack([r.G for r in v]), np.stack([r.u for r in v]),
+                        np.stack([r.contact for r in v]), np.stack([r.saturated for r in v]))
+            for k, v in out.items()}
+
+
+def _press_forces(n: int, n_el: int, seed: int) -> np.ndarray:
+    """The gauge protocol: ``n`` single-element presses per element, half normal, half inclined (T, E, 3)."""
+    rng = np.random.default_rng([seed, 5])
+    f = np.zeros((n * n_el, n_el, 3))
+    t = 0
+    for e in range(n_el):
+        for j in range(n):
+            fz = rng.uniform(0.1, 0.9)
+            mu = 0.0 if j % 2 == 0 else rng.uniform(0.1, 0.3)
+            phi = rng.uniform(0, 2 * np.pi)
+            f[t, e] = (mu * fz * math.cos(phi), mu * fz * math.sin(phi), fz)
+            t += 1
+    return f[rng.permutation(len(f))]
+
+
+def _pose_error(fit: Camera, true: Camera) -> tuple[float, float]:
+    rel = fit.rotation @ true.rotation.T
+    angle = math.degrees(math.acos(float(np.clip((np.trace(rel) - 1) / 2, -1, 1))))
+    return float(np.linalg.norm(fit.position - true.position)), angle
+
+
+def _registration_errors(reg, standin: StandIn) -> dict:
+    """Registration against the hidden truth."""
+    mm, deg = _pose_error(reg.camera, standin.camera)
+    true_off = np.asarray(standin.sensor.element_offsets)
+    fit_off = (np.asarray(reg.sensor.element_offsets) if reg.sensor.element_offsets
+               else np.zeros_like(true_off))
+    seen = np.setdiff1d(np.arange(standin.sensor.n_elements), reg.unseen)
+    out = {"pose_mm": mm, "pose_deg": deg, "rms_px": reg.rms_px,
+           "focal_pct": 100.0 * abs(reg.camera.fx / standin.camera.fx - 1.0),
+           "offsets_rms_mm": float(np.sqrt(np.mean(np.sum((fit_off - true_off)[seen] ** 2, axis=1)))),
+           "offsets_true_rms_mm": float(np.sqrt(np.mean(np.sum(true_off ** 2, axis=1)))),
+           "dome_radius_pct": 100.0 * abs(reg.sensor.outer_radius / standin.sensor.outer_radius - 1.0),
+           "unseen": [int(e) for e in reg.unseen]}
+    if reg.sensor.element_gain:
+        g_fit, g_true = reg.sensor.gains[seen], standin.sensor.gains[seen]
+        rel = (g_fit / np.median(g_fit)) / (g_true / np.median(g_true))
+        out["gains_rms_pct"] = float(100.0 * np.sqrt(np.mean((rel - 1.0) ** 2)))
+    return out
+
+
+def _report(cal, readings, forces) -> dict:
+    from optitact.calib.held_out import press_report
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OptitactWarning)
+        rep = press_report(cal, readings, forces, np.any(forces != 0, axis=-1))
+    return {"rmse_pct_fs": rep["rmse_pct_fs"], "rmse_n": rep["rmse_n"], "bias_n": rep["bias_n"]}
+
+
+def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 50), test_frames: int = 40,
+                  size: tuple[int, int] = (640, 480), seed: int = 0, variant: str | None = None, plot=None,
+                  progress: bool = True) -> dict:
+    """Registration and force errors on stand-ins for a real sensor (see the module docstring).
+
+    Parameters
+    ----------
+    sensors : int
+        Stand-ins registered (pose, focal length, offsets, gains against the
+        hidden truth), seeds ``seed .. seed + sensors - 1``.
+    force_sensors : int
+        Of those, how many also get the force study (held-out frames, press
+        calibrations, the matched floor): the first ones.
+    ns : sequence of int
+        Presses per element of the measured calibrations.
+    test_frames : int
+        Held-out frames per stand-in (every element loaded in each).
+    size : (int, int)
+        Frame width and height.
+    seed : int
+    variant : str, optional
+        Mitsuba variant for the one-time no-load frame of the camera.
+    plot : path-like, optional
+        PNG: force errors against presses per element, and registration errors per stand-in.
+    progress : bool
+
+    Returns
+    -------
+    dict
+        ``registration`` (per stand-in and the worst over them), ``forces``
+        (per force stand-in: ``nominal``, ``registered``, ``presses``
+        (``ns``, ``refined``, ``scratch``), ``matched``; and ``summary``: the
+        per-axis RMSE medians over the force stand-ins), ``setup``.
+    """
+    from optitact.calib import Calibration, default_calibration
+    from optitact.calib.held_out import press_curve
+    from optitact.calib.sets import Design, design_forces
+    from optitact.pipeline import Pipeline
+    from optitact.register import RegistrationError, register
+
+    sensors = integer(sensors, "sensors", minimum=1)
+    force_sensors = integer(force_sensors, "force_sensors", minimum=0)
+    if force_sensors > sensors:
+        raise InputError(f"force_sensors ({force_sensors}) must be at most sensors ({sensors})")
+    ns = tuple(integer(n, "ns", minimum=1) for n in ns)
+    test_frames = integer(test_frames, "test_frames", minimum=1)
+    shipped = default_calibration()
+    options = dict(shipped.pipeline_options)
+    n_el = shipped.sensor.n_elements
+    w, h = size
+    reg_rows, force_rows = [], []
+    for i in range(sensors):
+        s_seed = seed + i
+        standin = draw_standin(s_seed, size)
+        frames = _Frames(standin, variant=variant)
+        base = frames.baseline(s_seed)
+        press = np.zeros((len(REGISTRATION_PRESSES), n_el, 3))
+        for k, els in enumerate(REGISTRATION_PRESSES):
+            press[k, list(els), 2] = REGISTRATION_FORCE_N
+        pressed = [frames.frame(f, int(s)) for f, s in
+                   zip(press, np.random.SeedSequence([s_seed, 13]).generate_state(len(press)), strict=True)]
+        row = {"seed": s_seed}
+        try:
+            reg = register(base.mean(axis=0), pressed, camera=standin.intrinsics, fit_offsets=True,
+                           fit_gains=True)
+        except RegistrationError as exc:
+            row["refused"] = str(exc)
+            reg_rows.append(row)
+            continue
+        row.update(_registration_errors(reg, standin))
+        reg_rows.append(row)
+        if progress:
+            print(f"optitact: bench realism: stand-in {s_seed}: pose {row['pose_mm']:.3f} mm / "
+                  f"{row['pose_deg']:.3f} deg, {row['rms_px']:.3f} px RMS", file=sys.stderr)
+        if i >= force_sensors:
+            continue
+        # --- forces: every pipeline reads the same frames
+        designed_cam = FisheyeCamera(width=w, height=h)
+        pipes = {"nominal": Pipeline(shipped.sensor, designed_cam, baseline=base, **options),
+                 "registered": Pipeline(reg.sensor, reg.camera, baseline=base, **options),
+                 "matched": Pipeline(standin.sensor, standin.camera, baseline=base, **options)}
+        test_f = design_forces(test_frames, n_el, Design(), seed=10_000 + s_seed)
+        test = _readings(frames, pipes, test_f, 20_000 + s_seed, "held-out", progress)
+        transferred = shipped.transferred(reg.sensor, reg.camera)
+        out = {"seed": s_seed,
+               "nominal": _report(shipped, test["nominal"], test_f),
+               "registered": _report(transferred, test["registered"], test_f)}
+        press_f = _press_forces(max(ns), n_el, 30_000 + s_seed)
+        gauge = press_f * (1 + 0.01 * np.random.default_rng([s_seed, 17]).normal(size=press_f.shape))
+        pr = _readings(frames, {"registered": pipes["registered"]}, press_f, 40_000 + s_seed, "presses",
+                       progress)["registered"]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OptitactWarning)
+            curve = press_curve(pr, gauge, test["registered"], test_f, sensor=reg.sensor, camera=reg.camera,
+                                start=transferred, ns=ns, pipeline_options=options, seed=s_seed)
+        out["presses"] = {"ns": list(ns), "refined": curve["refined"], "scratch": curve["scratch"]}
+        cal_f = design_forces(MATCHED_FRAMES, n_el, Design(), seed=50_000 + s_seed)
+        own = _readings(frames, {"matched": pipes["matched"]}, cal_f, 60_000 + s_seed, "matched set",
+                        progress)["matched"]
+        matched = Calibration.fit(own, cal_f, sensor=standin.sensor, camera=standin.camera,
+                                  pipeline_options=options, model=shipped.model)
+        out["matched"] = _report(matched, test["matched"], test_f)
+        force_rows.append(out)
+    result = {"setup": {"sensors": sensors, "force_sensors": force_sensors, "size": [w, h], "seed": seed,
+                        "test_frames": test_frames, "ns": list(ns),
+                        "registration_force_n": REGISTRATION_FORCE_N,
+                        "matched_frames": MATCHED_FRAMES, "gauge_noise": "1 % of reading",
+                        "render": "two_stage, stand-in's own camera and geometry, nominal CCD"},
+              "registration": {"per_sensor": reg_rows, "worst": _worst(reg_rows)},
+              "forces": {"per_sensor": force_rows, "summary": _summary(force_rows, ns)}}
+    if plot is not None:
+        result["plot"] = str(_plot(result, plot))
+    return result
+
+
+def _worst(rows: list) -> dict:
+    ok = [r for r in rows if "refused" not in r]
+    keys = ("pose_mm", "pose_deg", "rms_px", "focal_pct", "offsets_rms_mm", "gains_rms_pct", "dome_radius_pct")
+    out = {k: max(r[k] for r in ok) for k in keys if ok and all(k in r for r in ok)}
+    out["refused"] = [r["seed"] for r in rows if "refused" in r]
+    return out
+
+
+def _summary(rows: list, ns) -> dict:
+    """Per-axis RMSE (% FS), median over the force stand-ins, per row of the study."""
+    if not rows:
+        return {}
+    axes = ("fx", "fy", "fz")
+
+    def med(reports):
+        good = [r for r in reports if "refused" not in r]
+        return {a: float(np.median([r["rmse_pct_fs"][a] for r in good])) for a in axes} if good else None
+
+    out = {"nominal": med([r["nominal"] for r in rows]), "registered": med([r["registered"] for r in rows]),
+           "matched": med([r["matched"] for r in rows])}
+    for kind in ("refined", "scratch"):
+        out[kind] = {str(n): med([r["presses"][kind][j] for r in rows]) for j, n in enumerate(ns)}
+    floor = out["matched"]
+    out["refined_over_matched"] = {str(n): ({a: v[a] / floor[a] for a in axes} if v else None)
+                                   for n, v in out["refined"].items()}
+    return out
+
+
+def _plot(result: dict, path):
+    from optitact._optional import require
+    from optitact.io import atomic_write_png_figure
+
+    require("matplotlib", purpose="the realism plot")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    summ = result["forces"]["summary"]
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.6))
+    colours = {"fx": "tab:blue", "fy": "tab:orange", "fz": "tab:green"}
+    if summ:
+        ns = [int(n) for n in summ["refined"]]
+        for a, c in colours.items():
+            for kind, style in (("refined", "-o"), ("scratch", "--s")):
+                pts = [(n, v[a]) for n, v in zip(ns, summ[kind].values(), strict=True) if v]
+                if pts:
+                    ax.plot(*zip(*pts, strict=True), style, color=c, label=f"{a.upper()} presses ({kind})")
+            ax.axhline(summ["matched"][a], color=c, lw=1, ls=":", label=f"{a.upper()} matched floor")
+            ax.scatter([ns[0] * 0.6], [summ["registered"][a]], marker="^", color=c)
+            ax.scatter([ns[0] * 0.45], [summ["nominal"][a]], marker="x", color=c)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xticks([ns[0] * 0.45, ns[0] * 0.6, *ns])
+        ax.set_xticklabels(["nominal", "registered", *map(str, ns)], rotation=30)
+        ax.set_xlabel("presses per element (after registration)")
+        ax.set_ylabel("held-out RMSE (% of full scale)")
+        ax.set_title(f"forces, median over {len(result['forces']['per_sensor'])} stand-in(s)")
+        ax.legend(fontsize=7, ncol=2)
+    else:
+        ax.set_axis_off()
+    rows = [r for r in result["registration"]["per_sensor"] if "refused" not in r]
+    x = [r["seed"] for r in rows]
+    bx.bar(np.arange(len(x)) - 0.2, [1000 * r["pose_mm"] for r in rows], 0.4, label="pose error (um)")
+    bx.bar(np.arange(len(x)) + 0.2, [1000 * r["pose_deg"] for r in rows], 0.4, label="rotation error (mdeg)")
+    bx.axhline(50, color="tab:blue", ls=":", lw=1, label="bar: 50 um")
+    bx.axhline(100, color="tab:orange", ls=":", lw=1, label="bar: 100 mdeg")
+    bx.set_xticks(np.arange(len(x)))
+    bx.set_xticklabels([str(s) for s in x])
+    bx.set_xlabel("stand-in (seed)")
+    bx.set_ylabel("registration error")
+    bx.set_title("registration against the hidden truth")
+    bx.legend(fontsize=8)
+    fig.tight_layout()
+    out = atomic_write_png_figure(fig, path)
+    plt.close(fig)
+    return out
