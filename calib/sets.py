@@ -71,12 +71,18 @@ class Design:
     sweep_fraction : float
         Fraction of frames given to the pure-normal and pure-shear sweeps
         (half each), default 0.2; the rest is a scrambled Sobol design.
+    pattern : str
+        How loads are spread over the elements (:mod:`optitact.calib.patterns`):
+        ``"independent"`` (default: every element its own random load, with
+        the sweeps), ``"uniform"``, ``"single"``, ``"clustered"``,
+        ``"checkerboard"``, ``"shear"``, or ``"blend"`` (all of them in turn).
     """
 
     fz_max: float = 1.0
     shear_max: float = 0.5
     mu_max: float = 0.35
     sweep_fraction: float = 0.2
+    pattern: str = "independent"
 
     def __post_init__(self) -> None:
         for name in ("fz_max", "shear_max", "mu_max"):
@@ -85,18 +91,32 @@ class Design:
         if frac > 1:
             raise InputError(f"sweep_fraction must be in [0, 1], got {frac}")
         object.__setattr__(self, "sweep_fraction", frac)
+        from .patterns import PATTERNS
+
+        if self.pattern not in PATTERNS:
+            raise InputError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
 
     def to_dict(self) -> dict:
-        """JSON-friendly parameters."""
-        return {"fz_max": self.fz_max, "shear_max": self.shear_max, "mu_max": self.mu_max,
-                "sweep_fraction": self.sweep_fraction}
+        """JSON-friendly parameters (``pattern`` only when not the classic ``"independent"``)."""
+        out = {"fz_max": self.fz_max, "shear_max": self.shear_max, "mu_max": self.mu_max,
+               "sweep_fraction": self.sweep_fraction}
+        if self.pattern != "independent":
+            out["pattern"] = self.pattern
+        return out
 
 
-def design_forces(n_frames: int, n_elements: int, design: Design, seed: int) -> np.ndarray:
+def design_forces(n_frames: int, n_elements: int, design: Design, seed: int,
+                  sensor: DomeSensor | None = None) -> np.ndarray:
     """Element-local forces ``(n_frames, n_elements, 3)`` of a calibration set.
+
+    A design of another ``pattern`` than ``"independent"`` is drawn by
+    :func:`optitact.calib.patterns.pattern_forces` on ``sensor`` (default
+    the default sensor).
 
     Notes
     -----
+    The ``"independent"`` design:
+
     * Sobol frames: a scrambled Sobol sequence (seeded) of
       ``(u1, u2, u3)`` per element sample gives ``Fz = fz_max u1``, shear
       magnitude ``min(mu_max Fz, shear_max) sqrt(u2)`` (uniform over the
@@ -108,6 +128,13 @@ def design_forces(n_frames: int, n_elements: int, design: Design, seed: int) -> 
     """
     from scipy.stats import qmc
 
+    if design.pattern != "independent":
+        from .patterns import pattern_forces
+
+        sensor = DomeSensor.default() if sensor is None else sensor
+        if sensor.n_elements != n_elements:
+            raise InputError(f"n_elements ({n_elements}) is not the sensor's ({sensor.n_elements})")
+        return pattern_forces(design.pattern, n_frames, sensor, design, seed)
     n_frames = integer(n_frames, "frames", minimum=1)
     rng = np.random.default_rng([seed, 1])
     n_sweep = int(round(design.sweep_fraction * n_frames))
@@ -457,7 +484,7 @@ def _fill(path: Path, *, zarr, attrs, check, frames, sensor, camera, ccd, design
         remove_partials(path)
     else:
         group = zarr.open_group(str(path), mode="a")
-        forces = design_forces(frames, n_el, design, seed)
+        forces = design_forces(frames, n_el, design, seed, sensor)
         group.create_array("forces", data=forces, chunks=(1, n_el, 3))
         group.create_array("seeds", data=frame_seeds(seed, frames), chunks=(frames,))
         group.create_array("G", shape=(frames, n_el), dtype="f8", chunks=(1, n_el), fill_value=0.0)

@@ -97,6 +97,9 @@ def add_parsers(sub) -> None:
                       help="how the held-out frames are rendered (default pixels: path-traced)")
     bacc.add_argument("--calibration-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this calibration set instead of generating one")
+    bacc.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
+                      help="load-pattern families of the held-out sets, each its own set: independent, "
+                           "uniform, single, clustered, checkerboard, shear, or all (default: all)")
     bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this held-out set instead of generating one")
     bstab = bsub.add_parser(
@@ -156,9 +159,14 @@ def _pipeline(args) -> dict:
 
 
 def _accuracy(args) -> dict:
+    from optitact.calib.patterns import FAMILIES
     from optitact.studies.bench_accuracy import bench_accuracy
 
-    return bench_accuracy(frames=args.frames, test_frames=args.test_frames, spp=args.spp,
+    if args.families is None:
+        families = ("independent",) if args.test_set is not None else FAMILIES
+    else:
+        families = FAMILIES if "all" in args.families else tuple(args.families)
+    return bench_accuracy(families=families, frames=args.frames, test_frames=args.test_frames, spp=args.spp,
                           test_spp=args.test_spp, size=size(args.size),
                           calibration_set=args.calibration_set, test_set=args.test_set, seed=args.seed,
                           variant=args.variant, plot=args.plot, render_mode=args.render_mode,

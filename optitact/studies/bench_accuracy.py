@@ -20,7 +20,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                    test_spp: int | None = None, size: tuple[int, int] = (640, 480),
                    calibration_set=None, test_set=None, seed: int = 0,
                    variant: str | None = None, plot=None, contact_min_n: float = 0.01,
-                   render_mode: str = "two_stage", test_render_mode: str = "pixels") -> dict:
+                   render_mode: str = "two_stage", test_render_mode: str = "pixels",
+                   families=("independent",)) -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -51,6 +52,11 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         How the calibration and the held-out frames are rendered (see
         :func:`optitact.calib.generate`); by default the calibration comes
         from the two-stage light transport and is tested on path-traced frames.
+    families : sequence of str
+        Load-pattern families of held-out sets (:data:`optitact.calib.patterns.FAMILIES`),
+        each its own set of ``test_frames`` frames with its own seed (``seed +
+        1000`` for ``independent``, ``seed + 1000 + 100 k`` for the k-th
+        family of ``FAMILIES``); default only ``independent``.
 
     Returns
     -------
@@ -58,36 +64,50 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         ``{"models": {"ohka": {...}, "coupled": {...}}, ...}`` with, per model,
         ``fx_rmse_n``, ``fy_rmse_n``, ``fz_rmse_n``, the same as % of full
         scale (``fz_max`` for Fz, ``shear_max`` for Fx and Fy),
+        ``fx/fy/fz_bias_pct_fs``, ``per_ring`` (RMSE % FS per axis),
         ``max_abs_error_n``, ``contact_flag_error_rate`` and
-        ``clamped_rate``, over every element sample of the held-out set.
+        ``clamped_rate``, over every loaded element sample (``Fz > 0``) of the
+        first family's held-out set; ``families``: the same per family, and
+        ``worst_family``: per model and axis, the family with the largest RMSE.
     """
     from optitact._cache import cache_dir
-    from optitact.calib import MODELS, CalibrationSet, fit, generate
+    from optitact.calib import MODELS, CalibrationSet, Design, fit, generate
+    from optitact.calib.patterns import FAMILIES
     from optitact.calib.plots import plot_errors
 
     width, height = size
     camera = FisheyeCamera(width=integer(width, "width", minimum=2),
                            height=integer(height, "height", minimum=2))
-    sets = cache_dir() / "sets"
+    set_dir = cache_dir() / "sets"
 
-    def get(given, n, s, tag, n_spp, mode):
+    def get(given, n, s, tag, n_spp, mode, design=None):
         if given is not None:
             return CalibrationSet(given)
-        path = sets / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}-{mode}.zarr"
+        path = set_dir / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}-{mode}.zarr"
         print(f"optitact: bench accuracy: {tag} set {path}", file=sys.stderr)
         if path.exists():
             cached = CalibrationSet(path)
             if cached.complete:  # made earlier (possibly by an older version): use as is
                 return cached
-        return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant, render_mode=mode)
+        return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant, render_mode=mode,
+                        design=design)
 
     test_spp = spp if test_spp is None else integer(test_spp, "test_spp", minimum=1)
+    families = tuple(families)
+    if not families or any(f not in FAMILIES for f in families):
+        raise InputError(f"families must be some of {FAMILIES}, got {families!r}")
+    if test_set is not None and len(families) > 1:
+        raise InputError("--test-set is one held-out set: give one family with it")
     cs = get(calibration_set, frames, seed, "calibration", spp, render_mode)
-    ts = get(test_set, test_frames, seed + 1000, "test", test_spp, test_render_mode)
-    if ts.attrs["seed"] == cs.attrs["seed"]:
-        raise InputError("the held-out set must have another seed than the calibration set")
+    sets = {}
+    for fam in families:
+        k = FAMILIES.index(fam)
+        sets[fam] = get(test_set, test_frames, seed + 1000 + 100 * k, "test" if k == 0 else f"test-{fam}",
+                        test_spp, test_render_mode, Design(pattern=fam))
+        if sets[fam].attrs["seed"] == cs.attrs["seed"]:
+            raise InputError("the held-out set must have another seed than the calibration set")
+    ts = sets[families[0]]
     truth = ts.forces()
-    readings = ts.readings()
     design = cs.attrs["design"]
     fs = np.array([design["shear_max"], design["shear_max"], design["fz_max"]])
     out: dict = {"size": f"{camera.width}x{camera.height}", "spp": int(cs.attrs["spp"]),
@@ -101,24 +121,48 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                  "full_scale_n": {"fx": fs[0], "fy": fs[1], "fz": fs[2]},
                  "ccd": ts.attrs["ccd"], "models": {}}
     estimates = {}
-    for model in MODELS:
-        cal = fit(cs, model=model)
-        est, clamped = cal.forces(readings)
-        estimates[model] = est
-        err = est - truth
-        rmse = np.sqrt(np.mean(err**2, axis=(0, 1)))
-        should = truth[..., 2] >= contact_min_n
-        out["models"][model] = {
-            "fx_rmse_n": round(float(rmse[0]), 5), "fy_rmse_n": round(float(rmse[1]), 5),
-            "fz_rmse_n": round(float(rmse[2]), 5),
-            "fx_rmse_pct_fs": round(float(100 * rmse[0] / fs[0]), 3),
-            "fy_rmse_pct_fs": round(float(100 * rmse[1] / fs[1]), 3),
-            "fz_rmse_pct_fs": round(float(100 * rmse[2] / fs[2]), 3),
-            "max_abs_error_n": round(float(np.abs(err).max()), 5),
-            "contact_flag_error_rate": round(float(np.mean(readings.contact != should)), 5),
-            "clamped_rate": round(float(np.mean(clamped)), 5),
-        }
+    cals = {model: fit(cs, model=model) for model in MODELS}
+    ring = cals[MODELS[0]].sensor.element_ring
+    out["families"] = {}
+    for fam, fset in sets.items():
+        f_truth, f_read = fset.forces(), fset.readings()
+        out["families"][fam] = {"set": {"path": str(fset.path), "frames": int(fset.done.sum()),
+                                        "seed": fset.attrs["seed"]}, "models": {}}
+        for model, cal in cals.items():
+            est, clamped = cal.forces(f_read)
+            if fam == families[0]:
+                estimates[model] = est
+            out["families"][fam]["models"][model] = _scores(est, f_truth, clamped, f_read, fs, ring,
+                                                            contact_min_n)
+    out["models"] = out["families"][families[0]]["models"]
+    out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
+                                            for fam in families), key=lambda kv: kv[1])
+                                   for ax in ("fx", "fy", "fz")} for model in MODELS}
     if plot is not None:
         plot_errors(truth, estimates, plot)
         out["plot"] = str(plot)
+    return out
+
+
+def _scores(est, truth, clamped, readings, fs, ring, contact_min_n) -> dict:
+    """RMSE (N and % FS), bias and per-ring RMSE over the loaded samples; flag and clamp rates over all."""
+    loaded = truth[..., 2] > 0
+    err = (est - truth)[loaded]
+    rmse = np.sqrt(np.mean(err**2, axis=0))
+    bias = err.mean(axis=0)
+    e_of = np.nonzero(loaded)[1]
+    should = truth[..., 2] >= contact_min_n
+    out = {}
+    for i, ax in enumerate(("fx", "fy", "fz")):
+        out[f"{ax}_rmse_n"] = round(float(rmse[i]), 5)
+        out[f"{ax}_rmse_pct_fs"] = round(float(100 * rmse[i] / fs[i]), 3)
+        out[f"{ax}_bias_pct_fs"] = round(float(100 * bias[i] / fs[i]), 3)
+    out["per_ring"] = [{"ring": int(r), "samples": int(np.sum(ring[e_of] == r)),
+                        **{f"{ax}_rmse_pct_fs": round(float(100 * np.sqrt(np.mean(err[ring[e_of] == r, i] ** 2))
+                                                            / fs[i]), 3)
+                           for i, ax in enumerate(("fx", "fy", "fz"))}}
+                       for r in np.unique(ring) if np.any(ring[e_of] == r)]
+    out["max_abs_error_n"] = round(float(np.abs(err).max()), 5) if err.size else 0.0
+    out["contact_flag_error_rate"] = round(float(np.mean(readings.contact != should)), 5)
+    out["clamped_rate"] = round(float(np.mean(clamped)), 5)
     return out

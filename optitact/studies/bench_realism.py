@@ -249,7 +249,7 @@ def _report(cal, readings, forces) -> dict:
 
 def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 50), test_frames: int = 40,
                   size: tuple[int, int] = (640, 480), seed: int = 0, variant: str | None = None, plot=None,
-                  progress: bool = True) -> dict:
+                  matched_frames: int = MATCHED_FRAMES, progress: bool = True) -> dict:
     """Registration and force errors on stand-ins for a real sensor (see the module docstring).
 
     Parameters
@@ -271,6 +271,8 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         Mitsuba variant for the one-time no-load frame of the camera.
     plot : path-like, optional
         PNG: force errors against presses per element, and registration errors per stand-in.
+    matched_frames : int
+        Frames of each force stand-in's own synthetic calibration (the floor).
     progress : bool
 
     Returns
@@ -293,6 +295,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         raise InputError(f"force_sensors ({force_sensors}) must be at most sensors ({sensors})")
     ns = tuple(integer(n, "ns", minimum=1) for n in ns)
     test_frames = integer(test_frames, "test_frames", minimum=1)
+    matched_frames = integer(matched_frames, "matched_frames", minimum=8)
     shipped = default_calibration()
     options = dict(shipped.pipeline_options)
     n_el = shipped.sensor.n_elements
@@ -350,7 +353,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
             curve = press_curve(pr, gauge, test["registered"], test_f, sensor=reg.sensor, camera=reg.camera,
                                 start=transferred, ns=ns, pipeline_options=options, seed=s_seed)
         out["presses"] = {"ns": list(ns), "refined": curve["refined"], "scratch": curve["scratch"]}
-        cal_f = design_forces(MATCHED_FRAMES, n_el, Design(), seed=50_000 + s_seed)
+        cal_f = design_forces(matched_frames, n_el, Design(), seed=50_000 + s_seed)
         own = _readings(frames, {"matched": pipes["matched"]}, cal_f, 60_000 + s_seed, "matched set",
                         progress)["matched"]
         matched = Calibration.fit(own, cal_f, sensor=standin.sensor, camera=standin.camera,
@@ -360,7 +363,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
     result = {"setup": {"sensors": sensors, "force_sensors": force_sensors, "size": [w, h], "seed": seed,
                         "test_frames": test_frames, "ns": list(ns),
                         "registration_force_n": REGISTRATION_FORCE_N,
-                        "matched_frames": MATCHED_FRAMES, "gauge_noise": "1 % of reading",
+                        "matched_frames": matched_frames, "gauge_noise": "1 % of reading",
                         "render": "two_stage, stand-in's own camera and geometry, nominal CCD"},
               "registration": {"per_sensor": reg_rows, "worst": _worst(reg_rows)},
               "forces": {"per_sensor": force_rows, "summary": _summary(force_rows, ns)}}

@@ -1,0 +1,139 @@
+"""Load-pattern families: how forces are spread over the elements in a frame.
+
+A calibration fitted on independent random loads is tested where a robot
+actually loads the sensor: one object pressing a cluster of elements, a flat
+plate loading all of them alike, a single element touched, sliding with shear
+in one direction. Each family here draws element-local forces ``(T, E, 3)``
+(N) for a :class:`~optitact.calib.sets.Design` (its ``fz_max``,
+``shear_max`` and ``mu_max`` bound every load), seeded:
+
+``independent``
+    Every element its own random load (a scrambled Sobol design over normal
+    force, shear magnitude and direction), with the pure-normal and
+    pure-shear sweeps of ``sweep_fraction`` of the frames: the classic design.
+``uniform``
+    All elements the same normal force, no shear; levels evenly over
+    ``(0, fz_max]`` (a flat plate).
+``single``
+    One element loaded per frame, the others free; elements in turn, random
+    normal force and shear.
+``clustered``
+    A rounded indenter (:func:`optitact.loads.indenter_load`) pressed at a
+    random point, width 2-8 mm, peak up to ``fz_max``, dragged with up to
+    ``mu_max`` of shear in a random direction: a neighbourhood loaded
+    together, strongest at its centre.
+``checkerboard``
+    Alternate elements loaded (by ring and position in the ring, so that
+    every loaded element has free neighbours), the two colourings in turn,
+    random normal force and shear.
+``shear``
+    Every element at ``fz_max / 2`` with shear along one of 8 directions
+    (global, projected onto each element's tangent plane), magnitude evenly
+    up to the design's limit: sliding.
+``blend``
+    Frames of every family above in turn (a calibration design that has seen
+    every pattern).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from optitact._validate import integer
+from optitact.errors import InputError
+from optitact.sensor import DomeSensor
+
+__all__ = ["PATTERNS", "FAMILIES", "pattern_forces"]
+
+#: The load-pattern families of held-out tests (``blend`` mixes them for a calibration design).
+FAMILIES = ("independent", "uniform", "single", "clustered", "checkerboard", "shear")
+#: Every pattern a :class:`~optitact.calib.sets.Design` can name.
+PATTERNS = (*FAMILIES, "blend")
+
+
+def _shear(rng, fz: np.ndarray, design) -> np.ndarray:
+    """Random shear (..., 2) within ``min(mu_max Fz, shear_max)``, uniform over the disc."""
+    mag = np.minimum(design.mu_max * fz, design.shear_max) * np.sqrt(rng.uniform(0, 1, fz.shape))
+    ang = rng.uniform(0, 2 * np.pi, fz.shape)
+    return np.stack([mag * np.cos(ang), mag * np.sin(ang)], axis=-1)
+
+
+def _tangent(sensor: DomeSensor, direction: np.ndarray) -> np.ndarray:
+    """A global direction projected onto each element's tangent plane, unit length (E, 2); 0 where none."""
+    t = np.einsum("nij,j->ni", sensor.element_frames[:, :2, :], direction)
+    norm = np.linalg.norm(t, axis=1, keepdims=True)
+    return np.divide(t, norm, out=np.zeros_like(t), where=norm > 1e-12)
+
+
+def _colouring(sensor: DomeSensor) -> np.ndarray:
+    """0/1 per element: alternating round each ring, the rings' phases alternating too."""
+    ring = sensor.element_ring
+    pos = np.concatenate([np.arange(n) for n in sensor.ring_counts])
+    return (pos + ring) % 2
+
+
+def pattern_forces(pattern: str, n_frames: int, sensor: DomeSensor, design, seed: int) -> np.ndarray:
+    """Element-local forces ``(n_frames, E, 3)`` (N) of a load-pattern family (see the module docstring).
+
+    ``independent`` is :func:`~optitact.calib.sets.design_forces`'s classic
+    design; the others are drawn from ``np.random.default_rng([seed, 2, k])``
+    with ``k`` the family's index, so each family's frames depend only on the
+    seed.
+    """
+    from optitact.loads import indenter_load
+
+    if pattern not in PATTERNS:
+        raise InputError(f"pattern must be one of {PATTERNS}, got {pattern!r}")
+    n_frames = integer(n_frames, "frames", minimum=1)
+    n_el = sensor.n_elements
+    if pattern == "independent":
+        from .sets import design_forces
+
+        return design_forces(n_frames, n_el, design, seed)
+    if pattern == "blend":
+        parts = np.array_split(np.arange(n_frames), len(FAMILIES))
+        out = np.zeros((n_frames, n_el, 3))
+        for fam, idx in zip(FAMILIES, parts, strict=True):
+            if idx.size:
+                out[idx] = pattern_forces(fam, idx.size, sensor, design, seed)
+        return out
+    rng = np.random.default_rng([seed, 2, PATTERNS.index(pattern)])
+    out = np.zeros((n_frames, n_el, 3))
+    if pattern == "uniform":
+        levels = design.fz_max * (np.arange(n_frames) + 1) / n_frames
+        out[:, :, 2] = rng.permutation(levels)[:, None]
+    elif pattern == "single":
+        elements = rng.permutation(np.resize(np.arange(n_el), n_frames))
+        fz = design.fz_max * rng.uniform(0.05, 1.0, n_frames)
+        t = np.arange(n_frames)
+        out[t, elements, 2] = fz
+        out[t, elements, :2] = _shear(rng, fz, design)
+    elif pattern == "clustered":
+        for t in range(n_frames):
+            polar = math.degrees(math.acos(rng.uniform(math.cos(math.radians(75.0)), 1.0)))
+            out[t] = indenter_load(sensor, polar_deg=polar, azimuth_deg=rng.uniform(0, 360),
+                                   peak=design.fz_max * rng.uniform(0.3, 1.0), width=rng.uniform(2.0, 8.0),
+                                   shear_ratio=design.mu_max * rng.uniform(0, 1),
+                                   shear_azimuth_deg=rng.uniform(0, 360))
+        mag = np.linalg.norm(out[..., :2], axis=-1)
+        cap = np.where(mag > design.shear_max, design.shear_max / np.maximum(mag, 1e-300), 1.0)
+        out[..., :2] *= cap[..., None]
+    elif pattern == "checkerboard":
+        colour = _colouring(sensor)
+        for t in range(n_frames):
+            on = colour == (t % 2)
+            fz = design.fz_max * rng.uniform(0.05, 1.0, n_el)
+            out[t, on, 2] = fz[on]
+            out[t, on, :2] = _shear(rng, fz, design)[on]
+    elif pattern == "shear":
+        fz = design.fz_max / 2
+        limit = min(design.mu_max * fz, design.shear_max)
+        for t in range(n_frames):
+            a = 2 * np.pi * (t % 8) / 8
+            mag = limit * ((t // 8) + 1) / (-(-n_frames // 8))
+            out[t, :, :2] = mag * _tangent(sensor, np.array([math.cos(a), math.sin(a), 0.0]))
+            out[t, :, 2] = fz
+        out = out[rng.permutation(n_frames)]
+    return out
