@@ -72,7 +72,11 @@ def _footprint_mm2(cam, rows, cols):
 @pytest.mark.parametrize("polar", [0.0, 25.0, 50.0, 70.0])
 def test_coverage_integrates_to_the_patch_area(polar):
     """Sum over pixels of coverage x pixel footprint on the dome = pi a^2 (analytic)."""
-    cam = optitact.FisheyeCamera()
+    _check_coverage_area(optitact.FisheyeCamera(), polar)
+
+
+def _check_coverage_area(cam, polar):
+    """Sum over pixels of coverage x pixel footprint = pi a^2 (1 %); the spot's centroid at the projection."""
     th, ph = math.radians(polar), math.radians(33.0)
     point = 20.0 * np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
     for a in (0.12, 0.4):
@@ -324,20 +328,7 @@ def test_coverage_integrates_to_the_patch_area_for_other_models(model, polar):
     The affine map over one pixel (centre and the neighbours' rays) holds as well as for the default
     fisheye: its error at the pixel's corners, measured on 3000 dome pixels of each 640 x 480 camera,
     is at most 0.31 % (pinhole) and 0.51 % (tilted fisheye) of the pixel's footprint (0.48 % default)."""
-    cam = _models()[model]
-    th, ph = math.radians(polar), math.radians(33.0)
-    point = 20.0 * np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
-    for a in (0.12, 0.4):
-        one = np.ones((1, 1))
-        c = Contacts(centers=point.reshape(1, 1, 3), radii=a * one, loads=0 * one, saturated=one < 0,
-                     tipped=np.zeros(1, bool), slide=np.zeros((1, 2)))
-        cov = patch_coverage(SENSOR, cam, c, SETTINGS, n_sub=16)
-        rows, cols = np.divmod(cov["pixel"], cam.width)
-        area = np.sum(cov["coverage"] * _footprint_mm2(cam, rows, cols))
-        assert area == pytest.approx(np.pi * a * a, rel=0.01)
-        weight = cov["coverage"] / cov["coverage"].sum()
-        centre = np.array([np.sum(weight * rows), np.sum(weight * cols)])
-        np.testing.assert_allclose(centre, cam.project(point, SENSOR), atol=0.15)
+    _check_coverage_area(_models()[model], polar)
 
 
 def test_table_key_ignores_the_rendering_camera_and_the_as_built_fields(tiny_table):
