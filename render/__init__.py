@@ -82,18 +82,10 @@ def _check_variant(variant) -> None:
 
 
 def _check_camera(camera) -> None:
-    """Any camera model renders with ``transport="path"`` (see :func:`_check_two_stage_camera`)."""
+    """Any camera model renders, with either transport."""
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__} (or another camera "
                         f"model of optitact.camera: PinholeCamera, OpenCVFisheyeCamera)")
-
-
-def _check_two_stage_camera(camera: Camera) -> None:
-    """The two-stage transport traces the patches in the on-axis equidistant model: refuse the others."""
-    if not isinstance(camera, FisheyeCamera):
-        raise InputError(f"transport='two_stage' supports only the on-axis equidistant fisheye "
-                         f"(FisheyeCamera); got a {type(camera).__name__} (model {camera.model!r}): render it "
-                         f"with transport='path'")
 
 
 def _check_crop(crop, camera: Camera) -> tuple[int, int, int, int] | None:
@@ -129,8 +121,8 @@ def render(sensor: DomeSensor, forces, *, camera: Camera | None = None, spp: int
         Any camera model (:class:`~optitact.FisheyeCamera`,
         :class:`~optitact.camera_models.PinholeCamera`,
         :class:`~optitact.camera_models.OpenCVFisheyeCamera`, with its pose);
-        default ``FisheyeCamera()`` (640 x 480). ``transport="two_stage"``
-        takes only a FisheyeCamera.
+        default ``FisheyeCamera()`` (640 x 480); both transports take every
+        model.
     spp : int
         Samples per pixel (>= 1), default 64.
     seed : int
@@ -159,14 +151,19 @@ def render(sensor: DomeSensor, forces, *, camera: Camera | None = None, spp: int
         (:func:`~optitact.render.emission.emission_table`), and the patches
         are traced in closed form as emitters seen through the dome
         (:func:`~optitact.render.twostage.render_two_stage`): no Monte Carlo
-        noise, milliseconds per frame; ``spp`` and ``pixels`` are not used,
-        ``background`` defaults to the cached no-load frame the table was
-        measured against.
+        noise, milliseconds per frame, any camera model with no per-camera
+        set-up; ``spp`` and ``pixels`` are not used. ``background`` defaults
+        to the camera's no-load frame
+        (:func:`~optitact.render.emission.noload_radiance`: path-traced and
+        cached for a FisheyeCamera, resampled through the dome from the
+        default camera's for other models).
     n_sub : int
         ``"two_stage"`` only: sub-pixel rays per side on patch edges (default 8).
     table : EmissionTable, optional
-        ``"two_stage"`` only: the stage-1 table (default: measured for this
-        sensor, camera and settings, or loaded from the cache).
+        ``"two_stage"`` only: the stage-1 table (default: the one of this
+        sensor and settings measured through ``FisheyeCamera()``, shipped for
+        the default sensor, else measured once and cached); it serves every
+        camera.
     target_error : float, optional
         ``"path"`` only, right-sized sampling: render passes of
         ``SPP_PER_PASS`` samples (at least ``spp``, at least 4 passes) until
@@ -323,7 +320,6 @@ def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, backg
                       variant, progress):
     from .twostage import EmissionTable, emission_table, noload_radiance, render_two_stage
 
-    _check_two_stage_camera(camera)
     n_sub = integer(n_sub, "n_sub", minimum=1)
     if pixels is not None:
         raise InputError("transport='two_stage' renders exactly the pixels patches cover; pixels= is "
@@ -335,7 +331,7 @@ def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, backg
     else:
         background = noload_radiance(sensor, camera, settings=settings, variant=variant)
     if table is None:
-        table = emission_table(sensor, camera, settings=settings, variant=variant, progress=progress)
+        table = emission_table(sensor, settings=settings, variant=variant, progress=progress)
     img = render_two_stage(sensor, contacts, camera=camera, table=table, background=background,
                            settings=settings, n_sub=n_sub)
     if crop is not None:

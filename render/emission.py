@@ -6,12 +6,15 @@ Brute-force path tracing at high spp of single patches on a grid of polar
 angle ``theta`` and patch radius ``a`` gives each patch's emitted radiance
 ``L_e(theta, a)`` (per unit rim radiance), and probes with blocker patches
 and lit neighbours give how patches dim or feed each other: the
-:class:`EmissionTable`. It is measured once per sensor, camera and render
-settings (:func:`emission_table`, announced on stderr, cached on disk) or
-taken from the tables shipped with the package (:func:`shipped_table`,
-``render/data/``), against the converged no-load frame
+:class:`EmissionTable`. The emitted radiance belongs to the patch (Lambertian
+rubber), not to the camera that sees it: the table serves every camera model.
+It is measured once per designed sensor and render settings, through a
+*measuring camera* (an on-axis :class:`~optitact.camera.FisheyeCamera`,
+default ``FisheyeCamera()``; :func:`emission_table`, announced on stderr,
+cached on disk) or taken from the tables shipped with the package
+(:func:`shipped_table`, ``render/data/``), against the converged no-load frame
 (:func:`noload_radiance`). Stage 2 (:mod:`optitact.render.twostage`) renders
-frames from it.
+frames from it through any camera.
 
 Convention
 ----------
@@ -29,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from optitact._validate import check_keys, integer
-from optitact.camera import FisheyeCamera
+from optitact._validate import check_keys, check_type, integer
+from optitact.camera import Camera, FisheyeCamera
 from optitact.contact import Contacts
 from optitact.errors import InputError, RenderError
 from optitact.io import atomic_write_text, json_fingerprint
@@ -60,7 +63,7 @@ NEAR_FIELD_DEG = 10.0
 PROBES_PER_RENDER = 13
 #: Version of the table format and of how it is measured (part of the cache key).
 TABLE_VERSION = 5
-#: Samples per pixel of a stage-1 table measured here when none is shipped for the sensor and camera.
+#: Samples per pixel of a stage-1 table measured here when none is shipped for the sensor and settings.
 TABLE_SPP = 4096
 #: Stage-1 tables shipped with the package (``render/data/``): the default sensor and camera's.
 SHIPPED_TABLES = ("emission_default.json",)
@@ -96,7 +99,8 @@ class EmissionTable:
         ``C_loc``: change of ``ln L_e`` per mm² of the other cones' patches of
         the *same element* (near field: light the neighbouring cones scatter).
     meta : dict
-        What the table was measured for (sensor, camera, settings, spp, seed, variant).
+        What the table was measured for (designed sensor, measuring camera, settings, spp, seed,
+        variant).
 
     Notes
     -----
@@ -189,42 +193,165 @@ class EmissionTable:
 NOLOAD_SPP, NOLOAD_SEED = 1024, 7
 
 
-def noload_radiance(sensor: DomeSensor, camera: FisheyeCamera, *, settings: RenderSettings | None = None,
-                    variant: str | None = None) -> np.ndarray:
-    """The converged no-load frame (``NOLOAD_SPP`` path-traced, cached on disk)."""
+def _measuring_camera(camera) -> FisheyeCamera:
+    """The camera a table is measured through: an on-axis FisheyeCamera (default ``FisheyeCamera()``)."""
+    if camera is None:
+        return FisheyeCamera()
+    if not isinstance(camera, FisheyeCamera):
+        raise TypeError(f"camera (the camera a stage-1 table is measured through) must be a FisheyeCamera or "
+                        f"None (FisheyeCamera()), got {type(camera).__name__}; the table serves every camera "
+                        f"model: render through yours with table=emission_table(sensor)")
+    return camera
+
+
+def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSettings | None = None,
+                    variant: str | None = None, resample: bool = True,
+                    nominal: FisheyeCamera | None = None) -> np.ndarray:
+    """The converged no-load frame of a camera: path-traced (``NOLOAD_SPP``, cached on disk) or resampled.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    camera : Camera
+        Any camera model. A :class:`~optitact.camera.FisheyeCamera` (or any
+        camera with ``resample=False``) is path-traced (about 250 s at
+        640 x 480 on 2 CPU cores, once: cached).
+    settings : RenderSettings, optional
+    variant : str, optional
+    resample : bool
+        For a camera of another model (default True): resample the nominal
+        camera's path-traced no-load frame through the dome instead of
+        path-tracing this camera's (milliseconds once the nominal frame is
+        cached); see Notes.
+    nominal : FisheyeCamera, optional
+        The on-axis camera whose no-load frame is resampled (default
+        ``FisheyeCamera()``, 640 x 480, the default measuring camera). Choose
+        one with at least the camera's pixels per degree.
+
+    Returns
+    -------
+    (H, W) float32
+        Radiance per pixel.
+
+    Notes
+    -----
+    Each pixel's ray of ``camera`` (from its position, exact undistortion) is
+    followed through the dome: where it enters the dome's cavity it refracts
+    at the inner sphere and meets the outer sphere at ``P``, and the nominal
+    camera's pixel that sees ``P`` (:func:`~optitact.dome_optics.pixel_from_dome`)
+    is sampled bilinearly; where it crosses the base plane (``z = 0``) outside
+    the inner sphere (the shell's base, where the rim light enters, and
+    beyond) the nominal camera's pixel whose ray crosses the base plane at the
+    same point is sampled. Where that pixel lies outside the nominal image,
+    the nominal frame's azimuthal mean at the same distance from its centre is
+    used (the no-load frame of the designed sensor is rotationally
+    symmetric); rays that see neither (looking below the base plane, or no
+    ray of the lens model) get 0, as the nominal frame shows beyond its rim.
+    Approximations: the radiance leaving a point is taken to be the same in
+    the camera's direction as in the nominal camera's (the no-load light is
+    mostly the guided light scattered out of the shell, a few degrees apart
+    for a camera a fraction of a mm off axis and a degree or two tilted),
+    the Fresnel transmittance of the two views is taken as equal, and the
+    nominal frame's resolution and Monte Carlo noise carry over. Measured
+    for an 80 x 60 Kannala-Brandt camera 0.36 mm off axis and 1.9 deg tilted
+    resampled from a 160 x 120 nominal frame against its own path-traced
+    no-load frame: see ``tests/test_twostage.py``
+    (``test_resampled_background_matches_a_path_traced_one``).
+    """
     from optitact._cache import cached_render
 
-    return cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera, spp=NOLOAD_SPP,
-                         seed=NOLOAD_SEED, variant=variant, settings=settings)
+    check_type(camera, Camera, "camera")
+    if isinstance(camera, FisheyeCamera) or not resample:
+        return cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera, spp=NOLOAD_SPP,
+                             seed=NOLOAD_SEED, variant=variant, settings=settings)
+    nominal = _measuring_camera(nominal)
+    base = noload_radiance(sensor, nominal, settings=settings, variant=variant)
+    return _resample_noload(sensor, camera, nominal, np.asarray(base, np.float64))
+
+
+def _resample_noload(sensor: DomeSensor, camera: Camera, nominal: FisheyeCamera,
+                     base: np.ndarray) -> np.ndarray:
+    """:func:`noload_radiance` of ``camera`` resampled from ``nominal``'s frame ``base`` (see its Notes)."""
+    from scipy.ndimage import map_coordinates
+
+    from optitact.dome_optics import _check_inside, _trace
+
+    c = camera.position
+    _check_inside(sensor, c)
+    rows, cols = np.mgrid[0:camera.height, 0:camera.width]
+    d = camera.ray_from_pixel(np.stack([rows, cols], axis=-1).astype(np.float64)).reshape(-1, 3)
+    ray = np.isfinite(d).all(axis=1)
+    d = np.where(ray[:, None], d, [0.0, 0.0, 1.0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p, dome = _trace(c, d, sensor.inner_radius, sensor.outer_radius, float(sensor.refractive_index))
+        dome &= ray
+        target = np.full((d.shape[0], 2), np.nan)
+        if dome.any():
+            target[dome] = nominal.project(p[dome], sensor, outside="nan")
+        # the base plane: where the ray crosses z = 0, seen by the nominal camera's straight ray
+        rest = ray & ~np.isfinite(target).all(axis=1) & (d[:, 2] > 0) & (c[2] < 0)
+        x0 = c + (-c[2] / d[:, 2])[:, None] * d
+        target[rest] = nominal.pixel_from_ray(x0[rest] - nominal.position)
+    out = np.zeros(d.shape[0])
+    found = np.isfinite(target).all(axis=1)
+    h, w = nominal.shape
+    inside = (found & (target[:, 0] >= 0) & (target[:, 0] <= h - 1)
+              & (target[:, 1] >= 0) & (target[:, 1] <= w - 1))
+    out[inside] = map_coordinates(base, target[inside].T, order=1, mode="nearest")
+    # outside the nominal image: its azimuthal mean at the same radius (1-pixel rings, linear between)
+    far = found & ~inside
+    if far.any():
+        cy, cx = nominal.center
+        nr, nc = np.mgrid[0:h, 0:w]
+        ring = np.hypot(nr - cy, nc - cx).reshape(-1)
+        k = np.floor(ring).astype(np.int64)
+        total = np.bincount(k, weights=base.reshape(-1))
+        count = np.bincount(k)
+        full = count > 0
+        radii = np.flatnonzero(full) + 0.5
+        profile = total[full] / count[full]
+        r = np.hypot(target[far, 0] - cy, target[far, 1] - cx)
+        out[far] = np.where(r <= ring.max(), np.interp(r, radii, profile), 0.0)
+    return out.reshape(camera.shape).astype(np.float32)
 
 
 def _table_key(sensor, camera, settings, thetas, radii, spp, seed, variant) -> str:
-    return json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
+    """Cache key of a measured table: the designed sensor, the measuring camera, settings, grid, sampling."""
+    return json_fingerprint({"sensor": sensor.as_designed.to_dict(), "camera": camera.to_dict(),
                              "settings": settings.to_dict(), "theta_deg": list(thetas), "radii": list(radii),
                              "spp": spp, "seed": seed, "variant": variant, "version": TABLE_VERSION}, 24)
 
 
 def _shipped_key(sensor, camera, settings, thetas, radii) -> str:
-    """What a table depends on besides its sampling (spp, seed, variant): the lookup key of shipped tables."""
-    return json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(),
+    """What a table depends on besides its sampling (spp, seed, variant): the lookup key of shipped tables.
+
+    The designed sensor (as-built offsets and gains are applied at render time), the measuring
+    camera, the render settings and the grid; never the camera a frame is rendered through.
+    """
+    return json_fingerprint({"sensor": sensor.as_designed.to_dict(), "camera": camera.to_dict(),
                              "settings": settings.to_dict(), "theta_deg": list(thetas), "radii": list(radii),
                              "version": TABLE_VERSION}, 24)
 
 
-def shipped_table(sensor: DomeSensor, camera: FisheyeCamera, *, settings: RenderSettings | None = None,
+def shipped_table(sensor: DomeSensor, camera: FisheyeCamera | None = None, *,
+                  settings: RenderSettings | None = None,
                   thetas_deg=TABLE_THETA_DEG, radii_mm=TABLE_RADII_MM, bands_deg=BAND_THETA_DEG,
                   spp: int | None = None, seed: int = 0) -> EmissionTable | None:
-    """The stage-1 table shipped with the package for this sensor, camera, settings and grid, or None.
+    """The stage-1 table shipped with the package for this sensor, settings and grid, or None.
 
     Shipped tables (``render/data/``) are measured as :func:`emission_table`
     measures them, once, by the developers; one matches when everything the
-    table depends on is the same (sensor, camera, render settings, grid,
-    table version: the fingerprint in its ``meta["key"]``) and, if given,
-    ``spp`` and ``seed`` are those it was measured with. The Mitsuba variant
-    it was measured on is not part of the match (the physics is the same).
+    table depends on is the same (the designed sensor: as-built offsets and
+    gains do not count; the measuring camera ``camera``, default
+    ``FisheyeCamera()``; render settings, grid, table version: the
+    fingerprint in its ``meta["key"]``) and, if given, ``spp`` and ``seed``
+    are those it was measured with. The Mitsuba variant it was measured on is
+    not part of the match (the physics is the same). The table serves every
+    camera a frame is rendered through.
     """
     from pathlib import Path
 
+    camera = _measuring_camera(camera)
     settings = RenderSettings() if settings is None else settings
     thetas = tuple(float(t) for t in thetas_deg)
     bands = tuple(float(b) for b in bands_deg)
@@ -346,7 +473,8 @@ def _measure(sensor, camera, settings, probes_c, probes_r, extra_c, extra_r, *, 
     return per_pass.mean(axis=0), per_pass.std(axis=0, ddof=1) / math.sqrt(n_passes)
 
 
-def emission_table(sensor: DomeSensor, camera: FisheyeCamera, *, settings: RenderSettings | None = None,
+def emission_table(sensor: DomeSensor, camera: FisheyeCamera | None = None, *,
+                   settings: RenderSettings | None = None,
                    thetas_deg=TABLE_THETA_DEG, radii_mm=TABLE_RADII_MM, bands_deg=BAND_THETA_DEG,
                    spp: int | None = None, seed: int = 0, variant: str | None = None,
                    progress: bool = False, cache: bool = True) -> EmissionTable:
@@ -371,6 +499,14 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera, *, settings: Rende
       at ``CLUSTER_THETA_DEG``; ``C_loc = ln(L_cone / L_expected) / A_neighbours``,
       a weighted quadratic in ``theta``.
 
+    The emitted radiance belongs to the patch, not to a camera: the table
+    serves every camera model a frame is rendered through. ``camera`` is only
+    the camera it is *measured* through: an on-axis
+    :class:`~optitact.camera.FisheyeCamera`, default ``FisheyeCamera()``
+    (tests measure coarse tables through tiny ones). It is measured on the
+    designed sensor (``sensor.as_designed``): as-built element offsets and
+    gains are applied at render time and do not change the table.
+
     The table is cached in the user cache folder (``emission/``), keyed by
     everything it depends on. The default sensor and camera's table ships
     with the package (:func:`shipped_table`): with ``spp=None`` (the
@@ -389,6 +525,9 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera, *, settings: Rende
 
     from . import SPP_PER_PASS, select_variant
 
+    check_type(sensor, DomeSensor, "sensor")
+    camera = _measuring_camera(camera)
+    sensor = sensor.as_designed
     settings = RenderSettings() if settings is None else settings
     if spp is not None:
         spp = integer(spp, "spp", minimum=2 * SPP_PER_PASS)
@@ -413,8 +552,9 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera, *, settings: Rende
     n_renders = (len(radii) + len(bands)) * n_groups + 2  # the jobs below
     if progress:
         guess = n_renders * (_PRIOR_S_PER_RENDER + _PRIOR_S_PER_SPP * spp)
-        print(f"optitact: one-time step: measuring the two-stage emission table for this sensor, camera and "
-              f"render settings ({n_renders} path-traced renders at {spp} spp, after a converged "
+        print(f"optitact: one-time step: measuring the two-stage emission table for this sensor and render "
+              f"settings, through a {camera.width}x{camera.height} fisheye; any camera renders with it "
+              f"({n_renders} path-traced renders at {spp} spp, after a converged "
               f"{NOLOAD_SPP}-spp no-load frame unless that is cached); it is cached in "
               f"{path if cache else '(nowhere: cache=False)'} and never measured again. Estimate: "
               f"{_minutes(guess)} for the renders (+ up to {_minutes(_PRIOR_NOLOAD_S)} for the no-load frame) "

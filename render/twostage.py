@@ -1,7 +1,7 @@
 """Two-stage light transport: guided light to the patches once, then patches as emitters seen through the dome.
 
-Stage 1 (expensive, once per sensor, camera and render settings, cached on
-disk; :mod:`optitact.render.emission`): the light the rim injects reaches a
+Stage 1 (expensive, once per designed sensor and render settings, for every
+camera, cached on disk or shipped; :mod:`optitact.render.emission`): the light the rim injects reaches a
 contact patch only after many total internal reflections, and barely depends
 on a few small contacts elsewhere. Brute-force path tracing at high spp of
 single patches on a grid of polar angle ``theta`` and patch radius ``a`` gives
@@ -11,7 +11,8 @@ each patch's emitted radiance ``L_e(theta, a)`` (per unit rim radiance): the
 Stage 2 (per frame, milliseconds, no Mitsuba; this module,
 :func:`render_two_stage`): every touching cone's patch is an emitter of
 radiance ``L_e(theta, a)``; each camera pixel that can see a patch is traced
-in closed form (:mod:`optitact.render.coverage`) — the fisheye ray,
+in closed form (:mod:`optitact.render.coverage`) — the camera's ray (any
+model: pinhole or fisheye, distorted, off axis and tilted),
 refraction into the acrylic at the inner surface (Snell), Fresnel
 transmittance back out, and the ray's hit on the patch's flat polygon — with
 ``n_sub x n_sub`` stratified sub-pixel rays. Pixels are composited over the
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from optitact.camera import FisheyeCamera
+from optitact.camera import Camera
 from optitact.contact import Contacts
 from optitact.sensor import DomeSensor
 
@@ -68,7 +69,7 @@ __all__ = ["EmissionTable", "emission_table", "patch_coverage", "render_two_stag
            "PROBES_PER_RENDER"]
 
 
-def render_two_stage(sensor: DomeSensor, contacts: Contacts, *, camera: FisheyeCamera,
+def render_two_stage(sensor: DomeSensor, contacts: Contacts, *, camera: Camera,
                      table: EmissionTable, background: np.ndarray, settings: RenderSettings,
                      n_sub: int = 8) -> np.ndarray:
     """Stage 2: the frame with every touching patch an emitter of radiance ``table(theta, a)``.

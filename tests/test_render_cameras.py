@@ -13,7 +13,6 @@ import pytest
 
 import optitact
 from optitact.camera_models import OpenCVFisheyeCamera, PinholeCamera, pose_from_position
-from optitact.errors import InputError
 from optitact.render import render, spot_pixels
 from optitact.render.scene import corner_rays, interpolate_rays
 
@@ -195,8 +194,18 @@ def test_pixel_rendering_matches_full_frames_within_noise(tilted_quarter_noload)
     assert np.all(np.abs(packed.mean(0) - full.mean(0)) < 4 * se + 0.02 * full.mean(0)), (packed, full)
 
 
-def test_two_stage_is_refused_for_other_models():
+def test_two_stage_takes_every_model_and_measures_tables_through_a_fisheye_only():
+    """Two-stage renders through any model (the table belongs to the patches); a table is measured
+    through an on-axis FisheyeCamera only, and the message says how to render through another."""
+    from optitact.render.emission import EmissionTable, emission_table
+
+    th = np.radians([0.0, 80.0])
+    table = EmissionTable(th, np.array([0.1, 0.5]), np.full((2, 2), 2.0), np.zeros((2, 2)), th,
+                          np.zeros((2, 2)), np.zeros(2), {})
     for cam in (quarter(PINHOLE), quarter(TILTED)):
-        with pytest.raises(InputError, match=r"transport='two_stage' supports only the on-axis equidistant "
-                                             r"fisheye \(FisheyeCamera\); got a \w+Camera .*transport='path'"):
-            render(SENSOR, np.zeros((41, 3)), camera=cam, transport="two_stage")
+        bg = np.zeros(cam.shape, np.float32)
+        img = render(SENSOR, PIX_LOAD, camera=cam, transport="two_stage", table=table, background=bg)
+        assert img.shape == cam.shape and np.isfinite(img).all() and img.max() > 0.1
+        assert np.all(img[~spot_pixels(SENSOR, cam, PIX_LOAD)] == 0)
+        with pytest.raises(TypeError, match=r"FisheyeCamera or None .*table=emission_table\(sensor\)"):
+            emission_table(SENSOR, cam)
