@@ -445,10 +445,16 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
                        settings=asdict(RenderSettings()), pipeline_options=options,
                        baseline_frames=baseline_frames, render_mode=render_mode)
     if render_mode == "two_stage":
-        from optitact.render.twostage import emission_table
+        from optitact.render.twostage import emission_table, shipped_table
 
-        table = table if table is not None else emission_table(sensor, camera, variant=variant, spp=table_spp,
-                                                               progress=progress)
+        # The table belongs to the patches, not the camera: the shipped one serves every camera; else it
+        # is measured through this camera if it is an on-axis fisheye (small ones measure fast), else the
+        # default camera.
+        if table is None and table_spp is None:
+            table = shipped_table(sensor)
+        if table is None:
+            measuring = camera if isinstance(camera, FisheyeCamera) else None
+            table = emission_table(sensor, measuring, variant=variant, spp=table_spp, progress=progress)
         attrs["two_stage_table"] = json_fingerprint(table.to_dict()["radiance"], 16)
     path = Path(path)
     if path.exists() and not path.is_dir():

@@ -164,7 +164,8 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     if "two_stage" in modes:
         t0 = time.perf_counter()
         if table is None:
-            table = emission_table(sensor, camera, variant=variant, progress=progress)
+            measuring = camera if isinstance(camera, FisheyeCamera) else None
+            table = emission_table(sensor, measuring, variant=variant, progress=progress)
         one_time["two_stage_table_s"] = round(time.perf_counter() - t0, 2)
         one_time["two_stage_table_build_s"] = table.meta.get("seconds")
     settings = {"brute": spps, "pixels": spps, "adaptive": targets, "two_stage": n_subs}
