@@ -280,6 +280,67 @@ class Calibration:
                 f"{self.camera.width}x{self.camera.height} camera {self.camera.to_dict()}, "
                 f"got {camera.to_dict()}")
 
+    def transferred(self, sensor: DomeSensor, camera: Camera) -> Calibration:
+        """The same curves for another (e.g. a registered) sensor and camera of the same element layout.
+
+        G is dewarped onto the dome (grey level x mm^2), so the curves carry
+        over to another camera to first order; an element's gain relative to
+        this calibration's sensor (``sensor.gains / self.sensor.gains``, see
+        :attr:`DomeSensor.element_gain`) is folded into its G scale:
+        ``g_scale`` and ``g_max`` times ``k``, i.e. ``Fz = g_self(G / k, u)``.
+        The pipeline options (mm on the dome) and intensity scale are kept;
+        the fingerprint becomes the new sensor's and camera's, and the
+        provenance records ``{"transferred_from": <this fingerprint>}``.
+
+        Parameters
+        ----------
+        sensor : DomeSensor
+            Same ring counts and cones per element as this calibration's.
+        camera : Camera
+            Any model (e.g. a registered :class:`optitact.OpenCVFisheyeCamera`).
+
+        Returns
+        -------
+        Calibration
+
+        Raises
+        ------
+        CalibrationMismatchError
+            Another element layout (ring counts, cones per element), or
+            pipeline options that do not build a pipeline for the new sensor
+            and camera.
+
+        Examples
+        --------
+        >>> from optitact.calib import default_calibration
+        >>> cal = default_calibration()
+        >>> built = DomeSensor(element_gain=[1.2] + [1.0] * 40)
+        >>> moved = cal.transferred(built, cal.camera)
+        >>> float(moved.g_scale[0] / cal.g_scale[0]), moved.provenance["transferred_from"] == cal.fingerprint
+        (1.2, True)
+        """
+        from dataclasses import replace
+
+        check_type(sensor, DomeSensor, "sensor")
+        check_type(camera, Camera, "camera")
+        old = self.sensor
+        for name in ("ring_counts", "n_cones"):
+            if getattr(sensor, name) != getattr(old, name):
+                raise CalibrationMismatchError(
+                    f"cannot transfer this calibration (fingerprint {self.fingerprint}): its sensor has "
+                    f"{name} {getattr(old, name)}, the new one {getattr(sensor, name)}; the curves are per "
+                    f"element, so the element layout must be the same")
+        try:
+            options = _resolved(sensor, camera, self.pipeline_options)
+        except (InputError, TypeError) as exc:
+            raise CalibrationMismatchError(
+                f"cannot transfer this calibration (fingerprint {self.fingerprint}): its pipeline options "
+                f"{self.pipeline_options} do not carry over to the new sensor and camera ({exc})") from None
+        k = sensor.gains / old.gains
+        return replace(self, sensor=sensor, camera=camera, pipeline_options=options,
+                       g_scale=self.g_scale * k, g_max=self.g_max * k,
+                       provenance={"transferred_from": self.fingerprint, "source_provenance": self.provenance})
+
     def forces(self, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
         """Element-local forces from readings, and the clamp flags.
 

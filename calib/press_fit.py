@@ -17,7 +17,10 @@ two factors fitted by least squares over its presses: a gain ``k`` on G
 elements differ in brightness) and a scale ``c`` on the shear curve (``F_t =
 c f_start``; fitted where a press has shear, else 1). Elements with fewer
 presses keep the starting curves (a warning names them). The fitted range
-grows to the largest G and shift seen in the presses.
+grows to the largest G and shift seen in the presses. A start made for
+another sensor or camera is transferred to the presses' first
+(:meth:`Calibration.transferred <optitact.calib.Calibration.transferred>`),
+so a registered sensor's element gains start the refinement.
 """
 
 from __future__ import annotations
@@ -151,7 +154,11 @@ def fit_presses(readings: Readings, forces, *, pressed=None, sensor: DomeSensor,
         needs ``MIN_PRESSES_SCRATCH`` presses per element. Otherwise refine
         this calibration's curves per element (a gain on G and a scale on the
         shear curve; see the module docstring); elements with fewer than
-        ``MIN_PRESSES_REFINE`` presses keep its curves.
+        ``MIN_PRESSES_REFINE`` presses keep its curves. A start made for
+        another sensor or camera (e.g. the shipped one, for a registered
+        sensor) is first transferred to ``sensor`` and ``camera``
+        (:meth:`Calibration.transferred`: its gains relative to the start's
+        sensor folded into the G scales), so the refinement starts close.
     intensity : IntensityScale, optional
         Of the frames (default: the start's, else 8-bit).
     provenance : dict, optional
@@ -195,6 +202,8 @@ def fit_presses(readings: Readings, forces, *, pressed=None, sensor: DomeSensor,
     if len(start.g) != readings.n_elements:
         raise ShapeError(f"the starting calibration has {len(start.g)} elements, the readings "
                          f"{readings.n_elements}")
+    if start.sensor != sensor or start.camera != camera:  # e.g. the shipped one, for a registered sensor
+        start = start.transferred(sensor, camera)
     return _refine(start, readings, f, usable, n_press, sensor=sensor, camera=camera, intensity=intensity,
                    provenance=prov)
 

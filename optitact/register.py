@@ -67,7 +67,8 @@ from .spots import Spots, detect_spots, grey_image, spots_in_difference
 if TYPE_CHECKING:
     from pathlib import Path
 
-__all__ = ["GATE", "MAX_CONDITION", "Registration", "RegistrationError", "Spots", "detect_spots", "register"]
+__all__ = ["GATE", "MAX_CONDITION", "GainsError", "Registration", "RegistrationError", "Spots", "detect_spots",
+           "register"]
 
 #: Association gate: a cluster may match an element within this fraction of the element's distance to its
 #: nearest neighbour (pixels, predicted with the camera of the moment).
@@ -88,6 +89,10 @@ class RegistrationError(InputError):
 
     Too few spots or elements, an ambiguous association, a degenerate pose.
     """
+
+
+class GainsError(RegistrationError):
+    """``fit_gains``: no pressed element's gain could be measured (the pose fit itself was fine)."""
 
 
 def _opencv_camera(camera: Camera) -> Camera:
@@ -113,17 +118,29 @@ def _with(camera: Camera, **changes) -> Camera:
     return new
 
 
+def _as_built(sensor: DomeSensor, offsets: np.ndarray | None) -> DomeSensor:
+    """``sensor`` with ``offsets`` (N, 2) mm added to its element offsets (both in the design frame)."""
+    if offsets is None or not np.any(offsets):
+        return sensor
+    total = np.asarray(offsets, dtype=np.float64)
+    if sensor.element_offsets:
+        total = total + np.asarray(sensor.element_offsets)
+    return replace(sensor, element_offsets=tuple(map(tuple, total)))
+
+
 def _cone_points(sensor: DomeSensor, elements: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
-    """(n, K, 3) cone patch centres of a pure normal press on ``elements``, each moved by ``offsets`` (mm)."""
+    """(n, K, 3) cone patch centres of a pure normal press on ``elements``.
+
+    ``offsets`` (N, 2) mm, one per element of the sensor, are added to the
+    sensor's own element offsets (design frame): the cones are those of the
+    as-built sensor :func:`_as_built` gives, exactly.
+    """
     from .contact import contact_patches
 
-    forces = np.zeros((sensor.n_elements, 3))
+    built = _as_built(sensor, offsets)
+    forces = np.zeros((built.n_elements, 3))
     forces[:, 2] = 1.0
-    centres = contact_patches(sensor, forces).centers[elements]
-    if offsets is None:
-        return centres
-    el = np.broadcast_to(elements[:, None], centres.shape[:2])
-    return sensor.dome_point(el, sensor.tangent_offset(el, centres) + offsets[:, None, :])
+    return contact_patches(built, forces).centers[elements]
 
 
 def _predict(sensor: DomeSensor, camera: Camera, elements: np.ndarray,
@@ -271,13 +288,16 @@ class _Model:
             i += 1
         offsets = np.zeros((sensor.n_elements, 2))
         offsets[self.offset_elements] = x[i:].reshape(-1, 2)
-        return sensor, _with(self.camera0, **kw), offsets
+        return _as_built(sensor, offsets), _with(self.camera0, **kw), offsets
 
     def residuals(self, x: np.ndarray, elements: np.ndarray, measured: np.ndarray) -> np.ndarray:
-        sensor, camera, offsets = self.build(x)
-        if not np.linalg.norm(camera.position) < sensor.inner_radius:
+        try:
+            sensor, camera, offsets = self.build(x)
+        except InputError:  # a step beyond what a sensor can be (an offset longer than the column)
+            sensor = None
+        if sensor is None or not np.linalg.norm(camera.position) < sensor.inner_radius:
             return np.full(2 * len(elements) + 2 * len(self.offset_elements), 1e3)
-        pred, _ = _predict(sensor, camera, elements, offsets[elements])
+        pred, _ = _predict(sensor, camera, elements)
         r = np.nan_to_num(measured - pred, nan=1e3).ravel()
         if len(self.offset_elements):
             r = np.concatenate([r, self.prior_px * offsets[self.offset_elements].ravel() / OFFSET_PRIOR_MM])
@@ -329,6 +349,94 @@ def _fit_observations(sensor, camera, clusters, obs_f, obs_c, obs_e, *, fit_intr
     return {"model": model, "res": res, "element": obs_e[keep], "frame": obs_f[keep]}
 
 
+# ----------------------------------------------------------------------------- per-element gains
+def _reference_curve(calibration, n_grid: int = 4097) -> tuple[np.ndarray, np.ndarray]:
+    """Each element's reference ``Fz(G)`` (a pure normal press, ``u = 0``) on a grid of G: (grid, (n, E))."""
+    from .readings import Readings
+
+    frac = np.linspace(0.0, 1.0, n_grid)[:, None]
+    grid = frac * calibration.g_max[None, :]
+    readings = Readings(grid, np.zeros(grid.shape + (2,)), np.ones(grid.shape, bool),
+                        np.zeros(grid.shape, bool))
+    fz = calibration.forces(readings)[0][..., 2]
+    return grid, np.maximum.accumulate(fz, axis=0) + frac * 1e-9  # strictly increasing, for np.interp
+
+
+def _reference_g(grid: np.ndarray, fz: np.ndarray, force: float) -> np.ndarray:
+    """The reference G (E,) the curves map to ``force``; NaN where ``force`` is beyond an element's range."""
+    out = np.full(grid.shape[1], np.nan)
+    for e in range(grid.shape[1]):
+        if fz[0, e] <= force <= fz[-1, e]:
+            out[e] = np.interp(force, fz[:, e], grid[:, e])
+    return out
+
+
+def _element_gains(sensor, camera, base, frames, obs_f, obs_e, *, press_force, calibration) -> dict:
+    """Per-element gains from equal presses: measured G over the reference calibration's G at the press force.
+
+    Returns ``gain`` (N,), ``se`` (N,) (NaN where unknown), ``force`` (the press force, given or the one that
+    makes the median gain 1), ``unfitted`` (seen elements whose presses could not be read against the
+    reference: no contact, saturated, outside its range).
+    """
+    from .pipeline import Pipeline
+
+    n = sensor.n_elements
+    if len(calibration.g) != n:
+        raise InputError(f"calibration: the reference calibration has {len(calibration.g)} elements, the "
+                         f"sensor {n}; give a calibration of a sensor with the same element layout")
+    options = {k: v for k, v in calibration.pipeline_options.items() if k != "method"}
+    pipe = Pipeline(sensor, camera, baseline=base, readings_bits=calibration.intensity.bits, **options)
+    readings = pipe.process(np.stack(frames))
+    g_meas = readings.G[obs_f, obs_e]
+    ok = readings.contact[obs_f, obs_e] & ~readings.saturated[obs_f, obs_e] & (g_meas > 0)
+    grid, fz = _reference_curve(calibration)
+    ref_gain = calibration.sensor.gains
+
+    def gains_at(force):
+        g_ref = _reference_g(grid, fz, force)[obs_e]
+        ratio = np.where(ok & np.isfinite(g_ref), g_meas / np.where(g_ref > 0, g_ref, np.nan), np.nan)
+        per = {}
+        for e in np.unique(obs_e):
+            r = ratio[obs_e == e]
+            r = r[np.isfinite(r)]
+            if r.size:
+                per[int(e)] = r * ref_gain[e]
+        return per
+
+    if press_force is None:  # the force at which the median element's gain is 1
+        top = float(np.min(fz[-1, np.unique(obs_e)]))
+        lo, hi = 1e-6 * top, top
+        for _ in range(60):
+            mid = math.sqrt(lo * hi)
+            per = gains_at(mid)
+            med = np.median([np.median(v) for v in per.values()]) if per else np.nan
+            if not np.isfinite(med):
+                break
+            lo, hi = (mid, hi) if med > 1.0 else (lo, mid)
+        force = math.sqrt(lo * hi)
+    else:
+        force = float(press_force)
+    per = gains_at(force)
+    if not per:
+        raise GainsError(
+            f"no element's gain could be measured: the pressed elements show no contact in the pipeline or "
+            f"their G lies outside the reference calibration's range at {force:.3g} N; press harder or "
+            f"lighter, give press_force (--press-force), or register without fit_gains")
+    if press_force is None:  # exact normalisation: the median over the seen elements is 1
+        med = float(np.median([np.median(v) for v in per.values()]))
+        per = {e: v / med for e, v in per.items()}
+    gain, se = sensor.gains.copy(), np.full(n, np.nan)
+    logs = [np.log(v) - np.mean(np.log(v)) for v in per.values() if v.size > 1]
+    dof = sum(v.size - 1 for v in per.values() if v.size > 1)
+    s_rel = math.sqrt(sum(float(np.sum(d ** 2)) for d in logs) / dof) if dof else math.nan
+    for e, v in per.items():
+        gain[e] = float(np.median(v))
+        se[e] = gain[e] * s_rel / math.sqrt(v.size)
+    gain = np.clip(gain, 1.0 / 16.0, 16.0)
+    unfitted = tuple(int(e) for e in np.unique(obs_e) if int(e) not in per)
+    return {"gain": gain, "se": se, "force": force, "unfitted": unfitted}
+
+
 # ----------------------------------------------------------------------------- the result
 @dataclass(frozen=True)
 class Registration:
@@ -337,7 +445,10 @@ class Registration:
     Attributes
     ----------
     sensor : DomeSensor
-        The sensor (its ``outer_radius`` fitted with ``fit_dome``).
+        The sensor as built: its ``outer_radius`` fitted with ``fit_dome``,
+        its ``element_offsets`` (the given sensor's plus the fitted ones, in
+        the design frame) with ``fit_offsets``, its ``element_gain`` with
+        ``fit_gains``. Every map built from it (pipeline, render) uses them.
     camera : Camera
         The fitted camera (an OpenCV model; :meth:`Camera.to_dict` for files).
     rms_px : float
@@ -345,7 +456,10 @@ class Registration:
     std_errors : dict
         Standard error of every fitted parameter: ``rvec_x..z`` (rad), the
         camera centre ``x_mm, y_mm, z_mm`` (dome frame), ``fx, fy, cx, cy``
-        (pixels), ``outer_radius_mm``, ``offset_E_x_mm`` / ``_y_mm``.
+        (pixels), ``outer_radius_mm``, ``offset_E_x_mm`` / ``_y_mm``, and
+        with ``fit_gains`` ``gain_E`` (relative; NaN for an element pressed
+        once when no element was pressed twice: the spread of repeated
+        presses, pooled over the elements, is the measure).
     unseen : tuple of int
         Elements no frame showed (or whose clusters were rejected).
     frames : tuple of dict
@@ -358,7 +472,15 @@ class Registration:
     residuals_px : (n, 2) ndarray
         Measured minus predicted cluster centroid ``(row, col)`` (pixels).
     element_offsets : (N, 2) ndarray
-        Fitted tangent offsets of the elements (mm, element-local x, y); zeros unless ``fit_offsets``.
+        The fitted change of the elements' tangent offsets (mm, in the design
+        position's element-local x, y); zeros unless ``fit_offsets``. The
+        sensor's ``element_offsets`` are the given sensor's plus these.
+    gain_force_n : float or None
+        With ``fit_gains``: the press force (N) the gains refer to, ``press_force`` when given, else the
+        force at which the reference calibration gives the median gain 1.
+    gain_unfitted : tuple of int
+        Seen elements whose gain could not be measured (no contact in the pipeline, saturated, or beyond
+        the reference calibration's range); they keep the given sensor's gain, as the unseen ones do.
     """
 
     sensor: DomeSensor
@@ -371,6 +493,8 @@ class Registration:
     frame: np.ndarray = field(repr=False)
     residuals_px: np.ndarray = field(repr=False)
     element_offsets: np.ndarray = field(repr=False)
+    gain_force_n: float | None = None
+    gain_unfitted: tuple = ()
 
     def as_dict(self) -> dict:
         """Per-observation table: ``frame, element, residual_row_px, residual_col_px``."""
@@ -380,11 +504,14 @@ class Registration:
     def to_dict(self) -> dict:
         """The setup document ``{"sensor", "camera", "registration"}`` for ``optitact process --setup``."""
         return {"sensor": self.sensor.to_dict(), "camera": self.camera.to_dict(),
-                "registration": {"rms_px": self.rms_px, "std_errors": dict(self.std_errors),
+                "registration": {"rms_px": self.rms_px,
+                                 "std_errors": {k: (v if math.isfinite(v) else None)
+                                                for k, v in self.std_errors.items()},
                                  "unseen": list(self.unseen), "frames": list(self.frames),
                                  "element_offsets_mm": {
                                      str(e): self.element_offsets[e].tolist()
-                                     for e in np.flatnonzero(self.element_offsets.any(axis=1))}}}
+                                     for e in np.flatnonzero(self.element_offsets.any(axis=1))},
+                                 "gain_force_n": self.gain_force_n, "gain_unfitted": list(self.gain_unfitted)}}
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write :meth:`to_dict` as JSON (atomically); returns the path."""
@@ -409,7 +536,8 @@ def _frames(pressed, noload_shape) -> list[np.ndarray]:
 
 
 def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSensor | None = None,
-             fit_intrinsics: bool = False, fit_dome: bool = False, fit_offsets: bool = False, k: float = 5.0,
+             fit_intrinsics: bool = False, fit_dome: bool = False, fit_offsets: bool = False,
+             fit_gains: bool = False, press_force: float | None = None, calibration=None, k: float = 5.0,
              f_scale: float = 0.5, min_elements: int | None = None) -> Registration:
     """Fit the camera's pose (and optionally its intrinsics and the dome) to spots of pressed elements.
 
@@ -435,7 +563,22 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
         Also fit the dome's outer radius (the shell thickness stays).
     fit_offsets : bool
         Also fit a tangent position offset per element seen, with a Gaussian
-        prior of :data:`OFFSET_PRIOR_MM` (the manufacturing tolerance).
+        prior of :data:`OFFSET_PRIOR_MM` (the manufacturing tolerance). The
+        fitted sensor carries them as its ``element_offsets`` (the given
+        sensor's plus the fitted ones, in the design frame).
+    fit_gains : bool
+        Also estimate each seen element's relative gain (brightness) from the
+        pressed frames, which must then be presses of (about) equal force:
+        one gauge setting, or one weight, for every press. The fitted sensor
+        carries them as its ``element_gain``; see Notes.
+    press_force : float, optional
+        The force (N) of every press, when known: the gains are then
+        absolute (relative to the reference calibration's sensor) instead of
+        normalised to a median of 1.
+    calibration : Calibration, optional
+        The reference the gains are measured against: a calibration of the
+        designed sensor (default: the shipped one,
+        :func:`optitact.calib.default_calibration`).
     k : float
         Spot threshold in robust noise sigmas (see :func:`detect_spots`).
     f_scale : float
@@ -447,6 +590,21 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
     Returns
     -------
     Registration
+
+    Notes
+    -----
+    Gains: the pressed frames are read by a :class:`optitact.Pipeline` of
+    the fitted sensor and camera (baseline: the no-load frame; the reference
+    calibration's pipeline options). Each seen element's gain is its
+    integrated grey value G (dewarped onto the dome, grey level x mm^2, so
+    camera-independent to first order) over the G that the reference
+    calibration's curve ``Fz = g(G, u = 0)`` gives at the press force, times
+    the reference sensor's own gain; an element pressed several times takes
+    the median. Without ``press_force`` the force is the one at which the
+    median gain over the seen elements is 1, and the gains are normalised to
+    that median exactly. Unseen elements keep the given sensor's gain (1 for
+    a designed sensor) and are named in ``unseen``; seen ones that cannot be
+    read in ``gain_unfitted``.
 
     Raises
     ------
@@ -469,10 +627,21 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
     if camera.shape != (h, w):
         raise ShapeError(f"the frames are {w}x{h} but the camera (intrinsics) is for {camera.width}x"
                          f"{camera.height} frames; give intrinsics calibrated at the frames' size")
-    for name, v in (("fit_intrinsics", fit_intrinsics), ("fit_dome", fit_dome), ("fit_offsets", fit_offsets)):
+    for name, v in (("fit_intrinsics", fit_intrinsics), ("fit_dome", fit_dome), ("fit_offsets", fit_offsets),
+                    ("fit_gains", fit_gains)):
         if not isinstance(v, (bool, np.bool_)):
             raise TypeError(f"{name} must be True or False, got {type(v).__name__}")
     k, f_scale = positive(k, "k"), positive(f_scale, "f_scale")
+    if press_force is not None:
+        if not fit_gains:
+            raise InputError("press_force is the force of the presses the gains are measured from; it needs "
+                             "fit_gains=True")
+        press_force = positive(press_force, "press_force")
+    if fit_gains:
+        from .calib import Calibration, default_calibration
+
+        calibration = default_calibration() if calibration is None else check_type(calibration, Calibration,
+                                                                                    "calibration")
     camera = _opencv_camera(camera)
     n_par = 6 + 4 * bool(fit_intrinsics) + bool(fit_dome)
     need = max(4, math.ceil((n_par + 4) / 2)) if min_elements is None else int(min_elements)
@@ -551,8 +720,16 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
                           "spots": int(len(spots[i].energy)), "noise_sigma": spots[i].noise_sigma})
     for i, cl in enumerate(clusters):  # clusters matched to no element
         per_frame[i]["rejected"] += int(len(cl["energy"]) - len(per_frame[i]["elements"]))
+    std_errors = {name: float(v) for name, v in zip(model.names, std, strict=True)}
+    gains = None
+    if fit_gains:
+        gains = _element_gains(fit_sensor, fit_camera, base, frames, np.asarray(obs_f), elements,
+                               press_force=press_force, calibration=calibration)
+        fit_sensor = replace(fit_sensor, element_gain=tuple(gains["gain"]))
+        std_errors |= {f"gain_{e}": float(gains["se"][e]) for e in sorted(seen)}
     return Registration(
-        sensor=fit_sensor, camera=fit_camera, rms_px=float(np.sqrt(np.mean(r ** 2))),
-        std_errors={name: float(v) for name, v in zip(model.names, std, strict=True)},
+        sensor=fit_sensor, camera=fit_camera, rms_px=float(np.sqrt(np.mean(r ** 2))), std_errors=std_errors,
         unseen=tuple(int(e) for e in everything if e not in seen), frames=tuple(per_frame),
-        element=elements, frame=np.asarray(obs_f, dtype=np.int64), residuals_px=r, element_offsets=offsets)
+        element=elements, frame=np.asarray(obs_f, dtype=np.int64), residuals_px=r, element_offsets=offsets,
+        gain_force_n=None if gains is None else gains["force"],
+        gain_unfitted=() if gains is None else gains["unfitted"])

@@ -299,3 +299,25 @@ def test_core_works_without_the_extras(tmp_path):
         "assert optitact.cli.main(['render', '--forces', 'none.csv', '--out', 'x.png']) == 2\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=tmp_path)
+
+
+def test_demo_renders_and_processes_a_setup(tmp_path, capsys):
+    """demo --setup: the setup's camera (an off-axis OpenCV fisheye, its own 64x48 size) and as-built sensor
+    are rendered (path-traced) and read with the shipped calibration transferred to them."""
+    from optitact.camera_models import OpenCVFisheyeCamera
+
+    f0 = 24 / np.deg2rad(70)
+    cam = OpenCVFisheyeCamera(64, 48, fx=f0, fy=f0, cx=32.0, cy=23.0, dist=(0.01, 0, 0, 0), tvec=(0.1, 0, 5.0))
+    sensor = optitact.DomeSensor(element_gain=np.linspace(0.9, 1.1, 41))
+    setup = tmp_path / "setup.json"
+    setup.write_text(json.dumps({"sensor": sensor.to_dict(), "camera": cam.to_dict()}))
+    out = tmp_path / "demo"
+    assert main(["demo", "--setup", str(setup), "--out", str(out), "--spp", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "the shipped calibration is transferred to the setup's sensor and camera" in err
+    meta = json.loads((out / "forces.json").read_text())
+    assert optitact.camera_from_dict(meta["camera"]) == cam and meta["sensor"] == sensor.to_dict()
+    assert cv2.imread(str(out / "frame.png"), cv2.IMREAD_UNCHANGED).shape == (48, 64)
+    assert np.array(meta["estimated_forces_local_n"]).shape == (41, 3)
+    assert main(["demo", "--setup", str(setup), "--out", str(out), "--width", "32", "--height", "24"]) == 2
+    assert "the setup's camera" in capsys.readouterr().err

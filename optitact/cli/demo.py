@@ -40,7 +40,14 @@ def add_parsers(sub) -> None:
                     "only), overlay.png (the contact model's patches), forces.png (the estimated "
                     "force field), estimated_forces.csv, radiance.npy and forces.json (true and "
                     "estimated forces, settings, timings) into a folder, whose path is printed on "
-                    "stdout. The no-load baseline renders are cached in the user cache folder.")
+                    "stdout. The no-load baseline renders are cached in the user cache folder. With "
+                    "--setup it renders and processes the setup's sensor and camera instead (e.g. a "
+                    "sensor registered by optitact register: its camera model and pose, element "
+                    "offsets and gains), path-traced at the camera's own size, and estimates forces "
+                    "with the shipped calibration transferred to them.")
+    demo.add_argument("--setup", type=Path, default=None, metavar="SETUP.json",
+                      help="the sensor and camera of a setup file (from optitact register); the frame is "
+                           "the camera's size (--width/--height must match it or be left out)")
     demo.add_argument("--out", type=out_folder, default=Path("optitact-demo"),
                       help="output folder, created if missing (default ./optitact-demo)")
     demo.set_defaults(run=run_demo)
@@ -65,10 +72,10 @@ def add_parsers(sub) -> None:
     rend.set_defaults(run=run_render)
 
 
-def _render_frame(sensor: DomeSensor, forces: np.ndarray, args) -> dict:
+def _render_frame(sensor: DomeSensor, forces: np.ndarray, args, camera=None) -> dict:
     from optitact.render import active_variant, render
 
-    camera = FisheyeCamera(width=args.width, height=args.height)
+    camera = FisheyeCamera(width=args.width, height=args.height) if camera is None else camera
     ccd = CCD(bits=args.bits)
     t0 = time.perf_counter()
     radiance = render(sensor, forces, camera=camera, spp=args.spp, seed=args.seed,
@@ -220,22 +227,44 @@ def _noload_baseline(sensor: DomeSensor, camera: FisheyeCamera, ccd: CCD, args, 
     return np.stack(baseline)
 
 
-def _shipped_calibration(sensor: DomeSensor, args):
+def _shipped_calibration(sensor: DomeSensor, args, camera=None):
     """The shipped calibration if it fits the demo's sensor and camera, else None (and a note why).
 
-    Called before rendering: a force estimate needs matplotlib for forces.png,
-    so a missing ``plot`` extra is reported now, not after minutes of renders.
+    For a ``--setup`` (``camera`` given) it is transferred to the setup's
+    sensor and camera (:meth:`Calibration.transferred`). Called before
+    rendering: a force estimate needs matplotlib for forces.png, so a missing
+    ``plot`` extra is reported now, not after minutes of renders.
     """
     from optitact._optional import require
     from optitact.calib import default_calibration
 
     cal = default_calibration()
-    if cal.camera != FisheyeCamera(width=args.width, height=args.height) or cal.sensor != sensor:
+    if camera is not None:
+        if cal.sensor != sensor or cal.camera != camera:
+            cal = cal.transferred(sensor, camera)
+            print(f"optitact: the shipped calibration is transferred to the setup's sensor and camera "
+                  f"(fingerprint {cal.fingerprint})", file=sys.stderr)
+    elif cal.camera != FisheyeCamera(width=args.width, height=args.height) or cal.sensor != sensor:
         print(f"optitact: the shipped calibration is for {cal.camera.width}x{cal.camera.height} "
               f"frames; skipping the force estimate", file=sys.stderr)
         return None
     require("matplotlib.figure", purpose="the demo's forces.png")
     return cal
+
+
+def _setup(args, argv_size: bool):
+    """``(sensor, camera)`` of ``--setup`` (camera None without one); the size options must agree."""
+    if args.setup is None:
+        return DomeSensor.default(), None
+    from .process import read_setup
+
+    sensor, camera = read_setup(args.setup)
+    if argv_size and (args.width, args.height) != (camera.width, camera.height):
+        from optitact.errors import InputError
+
+        raise InputError(f"--width/--height {args.width}x{args.height}: the setup's camera ({args.setup}) "
+                         f"makes {camera.width}x{camera.height} frames; leave the size out with --setup")
+    return sensor, camera
 
 
 def _estimate(sensor: DomeSensor, r: dict, args, cal) -> dict | None:
@@ -252,12 +281,12 @@ def run_demo(args) -> int:
     from optitact.io import write_json, write_npy, write_png
     from optitact.loads import indenter_load
 
-    sensor = DomeSensor.default()
+    sensor, camera = _setup(args, (args.width, args.height) != (640, 480))
     forces = indenter_load(sensor)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    cal = _shipped_calibration(sensor, args)
-    r = _render_frame(sensor, forces, args)
+    cal = _shipped_calibration(sensor, args, camera)
+    r = _render_frame(sensor, forces, args, camera)
     contacts = contact_patches(sensor, forces)
     write_png(out / "frame.png", r["frame"])
     write_png(out / "frame_view.png", display_view(r["frame"]))
@@ -278,6 +307,7 @@ def run_demo(args) -> int:
         "sensor": sensor.to_dict(),
         "camera": r["camera"].to_dict(),
         "ccd": r["ccd"].to_dict(),
+        "setup": None if args.setup is None else str(args.setup),
         "version": __version__,
     }
     if est is not None:
@@ -286,7 +316,8 @@ def run_demo(args) -> int:
         field = est["field"]
         field.to_csv(out / "estimated_forces.csv")
         field.save_plot(out / "forces.png", r["frame"], r["camera"],
-                        title="estimated forces (shipped calibration)")
+                        title="estimated forces (shipped calibration"
+                              + (", transferred to the setup)" if camera is not None else ")"))
         written += ["estimated_forces.csv", "forces.png"]
         truth = ForceField(sensor, forces)
         err = field.local - forces

@@ -73,7 +73,9 @@ def add_parsers(sub) -> None:
                       help="also estimate forces with this calibration (adds fx, fy, fz, fx_global, "
                            "fy_global, fz_global, clamped columns and the per-frame table); it "
                            "fixes the sensor, camera and pipeline options. 'default' uses the "
-                           "shipped calibration")
+                           "shipped calibration, transferred to a --setup's sensor and camera (their "
+                           "element gains folded in); a calibration file for another sensor or camera "
+                           "is refused")
     proc.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
                       help="with --calibration: save a force-field plot of the last frame")
     proc.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -106,11 +108,21 @@ def add_parsers(sub) -> None:
 
 
 def read_setup(path: Path) -> tuple[DomeSensor, Camera]:
-    """The sensor and camera of a ``--setup`` JSON file."""
-    setup = json.loads(path.read_text())
+    """The sensor and camera of a ``--setup`` JSON file; InputError naming the file otherwise."""
+    try:
+        setup = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such setup file (write one with optitact register)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not a setup JSON file ({exc})") from None
     if not isinstance(setup, dict) or "sensor" not in setup or "camera" not in setup:
-        raise InputError(f"{path}: expected a JSON object with 'sensor' and 'camera'")
-    return DomeSensor.from_dict(setup["sensor"]), camera_from_dict(setup["camera"])
+        got = sorted(setup) if isinstance(setup, dict) else type(setup).__name__
+        raise InputError(f"{path}: expected a JSON object with 'sensor' and 'camera' (as optitact register "
+                         f"writes), got {got}")
+    try:
+        return DomeSensor.from_dict(setup["sensor"]), camera_from_dict(setup["camera"])
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: {exc}") from None
 
 
 def _load_baseline(path: Path) -> np.ndarray:
@@ -143,18 +155,26 @@ def _given(args) -> dict:
 
 
 def _calibration(args, given: dict, setup):
-    """The ``--calibration`` (None without one), checked against ``--setup`` and the options."""
+    """The ``--calibration`` (None without one), checked against ``--setup`` and the options.
+
+    The shipped ``default`` calibration is transferred to a ``--setup``'s sensor and camera
+    (:meth:`Calibration.transferred`); a calibration file made for another sensor or camera is refused.
+    """
     if args.calibration is None:
         if args.plot is not None:
             raise InputError("--plot needs --calibration (it plots estimated forces)")
         return None
     from optitact.calib import Calibration, default_calibration
 
-    cal = (default_calibration() if str(args.calibration) == "default"
-           else Calibration.load(args.calibration))
+    shipped = str(args.calibration) == "default"
+    cal = default_calibration() if shipped else Calibration.load(args.calibration)
     if given:
         raise InputError(f"the calibration fixes the pipeline options "
                          f"({cal.pipeline_options}); drop {', '.join(sorted(given))}")
+    if shipped and setup is not None and (cal.sensor != setup[0] or cal.camera != setup[1]):
+        cal = cal.transferred(*setup)
+        print(f"optitact: the shipped calibration is transferred to the setup's sensor and camera "
+              f"({args.setup}: fingerprint {cal.fingerprint}, element gains folded into G)", file=sys.stderr)
     cal.check(sensor=None if setup is None else setup[0], camera=None if setup is None else setup[1])
     return cal
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -41,6 +42,17 @@ def add_parsers(sub) -> None:
                           "camera's height trade off, so expect larger standard errors")
     reg.add_argument("--fit-dome", action="store_true",
                      help="also fit the dome's outer radius (shell thickness fixed)")
+    reg.add_argument("--fit-offsets", action="store_true",
+                     help="also fit each seen element's position offset (prior 0.2 mm); the setup's sensor "
+                          "carries them")
+    reg.add_argument("--fit-gains", action=argparse.BooleanOptionalAction, default=None,
+                     help="estimate each pressed element's relative brightness (gain) from the pressed "
+                          "frames, which must be presses of about equal force (one gauge setting or weight). "
+                          "Default: on, skipped with a note when no press can be read against the shipped "
+                          "calibration; --fit-gains makes that an error, --no-fit-gains skips it")
+    reg.add_argument("--press-force", type=float, default=None, metavar="N",
+                     help="the force of every press (N), when known: absolute gains instead of gains "
+                          "normalised to a median of 1")
     reg.add_argument("--k", type=float, default=5.0,
                      help="spot threshold in robust noise sigmas over the no-load frame (default 5)")
     reg.add_argument("--out", type=out_file(".json"), default=Path("setup.json"), metavar="SETUP.json",
@@ -76,8 +88,19 @@ def run_register(args) -> int:
                          "distortion cannot be guessed)")
     else:
         camera = None
-    reg = register(base, pressed, camera=camera, fit_intrinsics=args.fit_intrinsics, fit_dome=args.fit_dome,
-                   k=args.k)
+    from optitact.register import GainsError
+
+    if args.press_force is not None and args.fit_gains is False:
+        raise InputError("--press-force is the force of the presses the gains come from; drop --no-fit-gains")
+    kw = dict(camera=camera, fit_intrinsics=args.fit_intrinsics, fit_dome=args.fit_dome,
+              fit_offsets=args.fit_offsets, k=args.k)
+    try:
+        reg = register(base, pressed, fit_gains=args.fit_gains is not False, press_force=args.press_force, **kw)
+    except GainsError as exc:
+        if args.fit_gains or args.press_force is not None:
+            raise
+        print(f"optitact: element gains not estimated ({exc})", file=sys.stderr)
+        reg = register(base, pressed, **kw)
     reg.save(args.out)
     c = reg.camera
     pos = ", ".join(f"{v:.3f}" for v in c.position)
@@ -89,5 +112,15 @@ def run_register(args) -> int:
           f"fx {c.fx:.2f}, fy {c.fy:.2f}, cx {c.cx:.2f}, cy {c.cy:.2f} px; "
           f"{len(reg.unseen)} element(s) unseen{': ' + str(list(reg.unseen)) if reg.unseen else ''}",
           file=sys.stderr)
+    if reg.gain_force_n is not None:
+        seen = sorted(set(int(e) for e in reg.element) - set(reg.gain_unfitted))
+        g = np.asarray(reg.sensor.gains)[seen]
+        lo, hi = seen[int(np.argmin(g))], seen[int(np.argmax(g))]
+        spread = 1.4826 * np.median(np.abs(g - np.median(g))) / np.median(g)
+        how = "given" if args.press_force is not None else "the median element's, from the shipped calibration"
+        print(f"optitact: element gains of {len(seen)} elements at {reg.gain_force_n:.3g} N ({how}): median "
+              f"{np.median(g):.3f}, robust spread {100 * spread:.1f} %, lowest {g.min():.3f} (element {lo}), "
+              f"highest {g.max():.3f} (element {hi}); unseen elements keep gain 1"
+              + (f"; not measured: {list(reg.gain_unfitted)}" if reg.gain_unfitted else ""), file=sys.stderr)
     print(args.out)
     return 0
