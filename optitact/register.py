@@ -195,6 +195,12 @@ def _clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera: Camera
         cen = np.array([(wts * gr).sum(), (wts * gc).sum()]) / e
         wp = np.maximum(wts, 0.0)
         rms = math.sqrt(((gr - cen[0]) ** 2 + (gc - cen[1]) ** 2)[sub] @ wp[sub] / max(wp.sum(), 1e-300))
+        if g.size == sensor.n_cones:
+            # Every cone a spot of its own: the plain mean of the spots' centroids is what the model
+            # predicts (the mean of the cones' images, :func:`_predict`), whatever the cones' brightness
+            # (the rim light makes those nearer the rim brighter, which pulls the energy-weighted
+            # centroid of a ring merged at low resolution outwards, by up to half a pixel).
+            cen = spots.centroid[g].mean(axis=0)
         out["centroid"].append(cen)
         out["energy"].append(e)
         out["rms"].append(rms)

@@ -66,6 +66,10 @@ def _difference(frame, noload, name: str) -> np.ndarray:
     return f - b
 
 
+#: Fraction of pixels whose mirrored negative deviation bounds the spot threshold from below.
+MIRROR_TAIL = 1e-4
+
+
 def _noise_sigma(diff: np.ndarray) -> float:
     """Robust noise sigma of ``diff``: 1.4826 x its median absolute deviation, at least 1e-3 grey levels.
 
@@ -86,7 +90,12 @@ def spots_in_difference(diff: np.ndarray, k: float, min_pixels: int) -> Spots:
     import cv2
 
     sigma = _noise_sigma(diff)
-    thr = k * sigma + float(np.median(diff))
+    med = float(np.median(diff))
+    # Spots only brighten: the negative tail is noise alone. A threshold below its mirror image (the
+    # level only MIRROR_TAIL of the pixels fall below) would take noise for spots, as in quantised,
+    # nearly dark frames where most differences are exactly 0 and the robust sigma collapses.
+    mirror = -float(np.quantile(diff - med, min(MIRROR_TAIL, 1.0))) if diff.size else 0.0
+    thr = max(k * sigma, mirror) + med
     n, labels, stats, _ = cv2.connectedComponentsWithStats((diff > thr).astype(np.uint8), connectivity=8,
                                                            ltype=cv2.CV_32S)
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_pixels) + 1

@@ -204,8 +204,8 @@ def _press_forces(n: int, n_el: int, seed: int) -> np.ndarray:
     t = 0
     for e in range(n_el):
         for j in range(n):
-            fz = rng.uniform(0.1, 0.9)
-            mu = 0.0 if j % 2 == 0 else rng.uniform(0.1, 0.3)
+            fz = rng.uniform(0.05, 1.0)  # the range the held-out loads span (the design's)
+            mu = 0.0 if j % 2 == 0 else rng.uniform(0.1, 0.35)
             phi = rng.uniform(0, 2 * np.pi)
             f[t, e] = (mu * fz * math.cos(phi), mu * fz * math.sin(phi), fz)
             t += 1
@@ -221,9 +221,11 @@ def _pose_error(fit: Camera, true: Camera) -> tuple[float, float]:
 def _registration_errors(reg, standin: StandIn) -> dict:
     """Registration against the hidden truth."""
     mm, deg = _pose_error(reg.camera, standin.camera)
-    true_off = np.asarray(standin.sensor.element_offsets)
-    fit_off = (np.asarray(reg.sensor.element_offsets) if reg.sensor.element_offsets
-               else np.zeros_like(true_off))
+    n = standin.sensor.n_elements
+    def offsets(sensor):
+        return np.asarray(sensor.element_offsets) if sensor.element_offsets else np.zeros((n, 2))
+
+    true_off, fit_off = offsets(standin.sensor), offsets(reg.sensor)
     seen = np.setdiff1d(np.arange(standin.sensor.n_elements), reg.unseen)
     out = {"pose_mm": mm, "pose_deg": deg, "rms_px": reg.rms_px,
            "focal_pct": 100.0 * abs(reg.camera.fx / standin.camera.fx - 1.0),
@@ -235,6 +237,34 @@ def _registration_errors(reg, standin: StandIn) -> dict:
         g_fit, g_true = reg.sensor.gains[seen], standin.sensor.gains[seen]
         rel = (g_fit / np.median(g_fit)) / (g_true / np.median(g_true))
         out["gains_rms_pct"] = float(100.0 * np.sqrt(np.mean((rel - 1.0) ** 2)))
+    return out
+
+
+def _press_calibrations(readings, gauge, n: int, reg, start, options: dict, seed: int) -> dict:
+    """Calibrations from ``n`` presses per element (drawn, seeded): refined from ``start`` and from scratch.
+
+    A fit that is refused (from scratch below its minimum presses) is ``{"refused": message}``.
+    """
+    from optitact.calib.press_fit import fit_presses
+    from optitact.readings import Readings
+
+    pressed = np.any(gauge != 0, axis=-1) & readings.contact & ~readings.saturated
+    rng = np.random.default_rng([seed, n, 19])
+    chosen = np.zeros_like(pressed)
+    for e in range(readings.n_elements):
+        pool = np.flatnonzero(pressed[:, e])
+        chosen[rng.choice(pool, min(n, pool.size), replace=False), e] = True
+    sub = Readings(readings.G, readings.u, chosen, readings.saturated)
+    forces = np.where(chosen[..., None], gauge, 0.0)
+    out = {}
+    for kind, st in (("refined", start), ("scratch", None)):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OptitactWarning)
+                out[kind] = fit_presses(sub, forces, pressed=chosen, sensor=reg.sensor, camera=reg.camera,
+                                        pipeline_options=options, start=st)
+        except InputError as exc:
+            out[kind] = {"refused": str(exc)}
     return out
 
 
@@ -284,7 +314,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         per-axis RMSE medians over the force stand-ins), ``setup``.
     """
     from optitact.calib import Calibration, default_calibration
-    from optitact.calib.held_out import press_curve
+    from optitact.calib.patterns import pattern_forces
     from optitact.calib.sets import Design, design_forces
     from optitact.pipeline import Pipeline
     from optitact.register import RegistrationError, register
@@ -338,27 +368,33 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         pipes = {"nominal": Pipeline(shipped.sensor, designed_cam, baseline=base, **options),
                  "registered": Pipeline(reg.sensor, reg.camera, baseline=base, **options),
                  "matched": Pipeline(standin.sensor, standin.camera, baseline=base, **options)}
-        test_f = design_forces(test_frames, n_el, Design(), seed=10_000 + s_seed)
-        test = _readings(frames, pipes, test_f, 20_000 + s_seed, "held-out", progress)
+        # held-out frames: every element loaded at once (independent loads), and gauge-style single presses
+        tests = {"independent": design_forces(test_frames, n_el, Design(), seed=10_000 + s_seed),
+                 "single": pattern_forces("single", test_frames * 4, shipped.sensor, Design(),
+                                          seed=10_000 + s_seed)}
+        test = {fam: _readings(frames, pipes, f, 20_000 + s_seed + 500 * k, f"held-out ({fam})", progress)
+                for k, (fam, f) in enumerate(tests.items())}
         transferred = shipped.transferred(reg.sensor, reg.camera)
         out = {"seed": s_seed,
-               "nominal": _report(shipped, test["nominal"], test_f),
-               "registered": _report(transferred, test["registered"], test_f)}
+               "nominal": {fam: _report(shipped, test[fam]["nominal"], f) for fam, f in tests.items()},
+               "registered": {fam: _report(transferred, test[fam]["registered"], f)
+                              for fam, f in tests.items()}}
         press_f = _press_forces(max(ns), n_el, 30_000 + s_seed)
         gauge = press_f * (1 + 0.01 * np.random.default_rng([s_seed, 17]).normal(size=press_f.shape))
         pr = _readings(frames, {"registered": pipes["registered"]}, press_f, 40_000 + s_seed, "presses",
                        progress)["registered"]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", OptitactWarning)
-            curve = press_curve(pr, gauge, test["registered"], test_f, sensor=reg.sensor, camera=reg.camera,
-                                start=transferred, ns=ns, pipeline_options=options, seed=s_seed)
-        out["presses"] = {"ns": list(ns), "refined": curve["refined"], "scratch": curve["scratch"]}
+        out["presses"] = {"ns": list(ns), "refined": [], "scratch": []}
+        for n in ns:
+            for kind, cal in _press_calibrations(pr, gauge, n, reg, transferred, options, s_seed).items():
+                out["presses"][kind].append(cal if isinstance(cal, dict) else
+                                            {fam: _report(cal, test[fam]["registered"], f)
+                                             for fam, f in tests.items()})
         cal_f = design_forces(matched_frames, n_el, Design(), seed=50_000 + s_seed)
         own = _readings(frames, {"matched": pipes["matched"]}, cal_f, 60_000 + s_seed, "matched set",
                         progress)["matched"]
         matched = Calibration.fit(own, cal_f, sensor=standin.sensor, camera=standin.camera,
                                   pipeline_options=options, model=shipped.model)
-        out["matched"] = _report(matched, test["matched"], test_f)
+        out["matched"] = {fam: _report(matched, test[fam]["matched"], f) for fam, f in tests.items()}
         force_rows.append(out)
     result = {"setup": {"sensors": sensors, "force_sensors": force_sensors, "size": [w, h], "seed": seed,
                         "test_frames": test_frames, "ns": list(ns),
@@ -384,7 +420,7 @@ def _worst(rows: list) -> dict:
 
 
 def _summary(rows: list, ns) -> dict:
-    """Per-axis RMSE (% FS), median over the force stand-ins, per row of the study."""
+    """Per held-out family: per-axis RMSE (% FS), median over the force stand-ins, per row of the study."""
     if not rows:
         return {}
     axes = ("fx", "fy", "fz")
@@ -393,13 +429,18 @@ def _summary(rows: list, ns) -> dict:
         good = [r for r in reports if "refused" not in r]
         return {a: float(np.median([r["rmse_pct_fs"][a] for r in good])) for a in axes} if good else None
 
-    out = {"nominal": med([r["nominal"] for r in rows]), "registered": med([r["registered"] for r in rows]),
-           "matched": med([r["matched"] for r in rows])}
-    for kind in ("refined", "scratch"):
-        out[kind] = {str(n): med([r["presses"][kind][j] for r in rows]) for j, n in enumerate(ns)}
-    floor = out["matched"]
-    out["refined_over_matched"] = {str(n): ({a: v[a] / floor[a] for a in axes} if v else None)
-                                   for n, v in out["refined"].items()}
+    out = {}
+    for fam in rows[0]["matched"]:
+        one = {"nominal": med([r["nominal"][fam] for r in rows]),
+               "registered": med([r["registered"][fam] for r in rows]),
+               "matched": med([r["matched"][fam] for r in rows])}
+        for kind in ("refined", "scratch"):
+            one[kind] = {str(n): med([r["presses"][kind][j].get(fam, r["presses"][kind][j]) for r in rows])
+                         for j, n in enumerate(ns)}
+        floor = one["matched"]
+        one["refined_over_matched"] = {str(n): ({a: v[a] / floor[a] for a in axes} if v else None)
+                                       for n, v in one["refined"].items()}
+        out[fam] = one
     return out
 
 
@@ -413,10 +454,11 @@ def _plot(result: dict, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    summ = result["forces"]["summary"]
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.6))
+    summary = result["forces"]["summary"]
+    fig, axes = plt.subplots(1, 1 + max(len(summary), 1), figsize=(6 * (1 + max(len(summary), 1)), 4.8))
     colours = {"fx": "tab:blue", "fy": "tab:orange", "fz": "tab:green"}
-    if summ:
+    n_force = len(result["forces"]["per_sensor"])
+    for ax, (fam, summ) in zip(axes, summary.items(), strict=False):
         ns = [int(n) for n in summ["refined"]]
         for a, c in colours.items():
             for kind, style in (("refined", "-o"), ("scratch", "--s")):
@@ -430,12 +472,14 @@ def _plot(result: dict, path):
         ax.set_yscale("log")
         ax.set_xticks([ns[0] * 0.45, ns[0] * 0.6, *ns])
         ax.set_xticklabels(["nominal", "registered", *map(str, ns)], rotation=30)
+        ax.minorticks_off()
         ax.set_xlabel("presses per element (after registration)")
         ax.set_ylabel("held-out RMSE (% of full scale)")
-        ax.set_title(f"forces, median over {len(result['forces']['per_sensor'])} stand-in(s)")
+        ax.set_title(f"held-out {fam} loads, median of {n_force} stand-in(s)")
         ax.legend(fontsize=7, ncol=2)
-    else:
-        ax.set_axis_off()
+    if not summary:
+        axes[0].set_axis_off()
+    bx = axes[-1]
     rows = [r for r in result["registration"]["per_sensor"] if "refused" not in r]
     x = [r["seed"] for r in rows]
     bx.bar(np.arange(len(x)) - 0.2, [1000 * r["pose_mm"] for r in rows], 0.4, label="pose error (um)")
