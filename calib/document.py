@@ -137,7 +137,7 @@ def from_document(cls, d):
     cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, G_TERMS)),
               arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
               arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
-              residuals, dict(d.get("provenance", {})), intensity)
+              residuals, dict(d.get("provenance", {})), intensity, _crosstalk(d.get("crosstalk"), sensor))
     if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
         raise InputError("calibration scales must be > 0")
     if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
@@ -166,6 +166,17 @@ def from_document(cls, d):
             f"calibration fingerprint {d['fingerprint']!r} does not match its own sensor, "
             f"camera and pipeline ({cal.fingerprint}); the file was edited or is corrupt")
     return cal
+
+
+def _crosstalk(value, sensor: DomeSensor):
+    """The document's cross-talk (None when it has none), checked against the sensor's rings."""
+    if value is None:
+        return None
+    from .crosstalk import CrossTalk
+
+    ct = CrossTalk.from_dict(value)
+    ct.matrix(sensor)  # InputError unless one row per ring
+    return ct
 
 
 def numbers(value, what: str) -> np.ndarray:

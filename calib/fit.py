@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,7 @@ from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
 from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
+from .crosstalk import CrossTalk, fit_crosstalk
 from .curves import G_TERMS, MODELS, fit_element, g_design
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
 from .document import PIPELINE_KEYS as PIPELINE_KEYS
@@ -114,6 +115,9 @@ class Calibration:
     intensity : IntensityScale
         The grey-level scale of the frames the readings came from (default
         8-bit, exposure 1, gain 1).
+    crosstalk : CrossTalk or None
+        The coupling between elements of the joint inversion
+        (:mod:`optitact.calib.crosstalk`); None: every element on its own.
     """
 
     model: str
@@ -130,9 +134,12 @@ class Calibration:
     residuals: dict = field(default_factory=dict)
     provenance: dict = field(default_factory=dict)
     intensity: IntensityScale = field(default_factory=IntensityScale)
+    crosstalk: CrossTalk | None = None
 
     def __post_init__(self) -> None:
         check_type(self.intensity, IntensityScale, "intensity")
+        if self.crosstalk is not None:
+            check_type(self.crosstalk, CrossTalk, "crosstalk")
 
     @property
     def fingerprint(self) -> str:
@@ -153,7 +160,8 @@ class Calibration:
     @classmethod
     def fit(cls, readings: Readings, forces, *, sensor: DomeSensor, camera: Camera,
             pipeline_options: dict | None = None, model: str = "coupled",
-            provenance: dict | None = None, intensity: IntensityScale | None = None) -> Calibration:
+            provenance: dict | None = None, intensity: IntensityScale | None = None,
+            joint: bool = False) -> Calibration:
         """Fit the curves to readings and the true (measured) forces that made them.
 
         Parameters
@@ -173,6 +181,11 @@ class Calibration:
             The grey-level scale of the frames the readings came from
             (default: 8-bit, exposure 1, gain 1). State it for frames of
             another depth, e.g. ``IntensityScale(bits=12)``.
+        joint : bool
+            Also fit the cross-talk between elements (the joint inversion of
+            :mod:`optitact.calib.crosstalk`), alternating with the curves; the
+            readings must vary what the neighbours carry (a ``blend`` design).
+            Its provenance records the fit's ``rms_log_before/after``.
 
         Raises
         ------
@@ -209,6 +222,16 @@ class Calibration:
         if n_el != sensor.n_elements:
             raise ShapeError(f"readings have {n_el} elements, the sensor {sensor.n_elements}")
         _check_readings(readings)
+        if not isinstance(joint, (bool, np.bool_)):
+            raise TypeError(f"joint must be True or False, got {type(joint).__name__}")
+        if joint:
+            def curves(G):
+                return cls.fit(Readings(G, readings.u, readings.contact, readings.saturated), f, sensor=sensor,
+                               camera=camera, pipeline_options=pipeline_options, model=model,
+                               provenance=provenance, intensity=intensity)
+
+            ct, cal, info = fit_crosstalk(readings, f, sensor, curves, _grey_for_force)
+            return replace(cal, crosstalk=ct, provenance={**cal.provenance, "crosstalk_fit": info})
         g_c = np.zeros((n_el, G_TERMS))
         gu = np.zeros((n_el, 2))
         f_c = np.zeros((n_el, 2))
@@ -357,15 +380,26 @@ class Calibration:
             raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
                              f"{len(self.g)}")
         _check_readings(readings)
-        G = np.minimum(readings.G, self.g_max)
-        radius = np.hypot(readings.u[..., 0], readings.u[..., 1])
+        if self.crosstalk is None:
+            out, clamped = self._per_element(readings.G, readings.u)
+        else:
+            out, clamped, _ = self.crosstalk.solve(self.sensor, readings.G, readings.contact,
+                                                   lambda G: self._per_element(G, readings.u))
+        out[~readings.contact] = 0.0
+        return out, clamped & readings.contact
+
+    def _per_element(self, G, u) -> tuple[np.ndarray, np.ndarray]:
+        """Forces (..., E, 3) and clamp flags of every element on its own (contact not applied)."""
+        readings_G = G
+        G = np.minimum(G, self.g_max)
+        radius = np.hypot(u[..., 0], u[..., 1])
         over_u = radius > self.u_max
         # Divide only where the centroid is clamped (radius > u_max >= 0): elsewhere a subnormal radius
         # would overflow the quotient that np.where then discards.
         scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
                           where=over_u)
-        u = readings.u * scale[..., None]
-        clamped = readings.contact & ((readings.G > self.g_max) | over_u)
+        u = u * scale[..., None]
+        clamped = (readings_G > self.g_max) | over_u
         s = G / self.g_scale
         t = u / self.u_scale[:, None]
         fz = np.einsum("...ek,ek->...e", g_design(s), self.g) + s * np.sum(t * self.gu, axis=-1)
@@ -375,9 +409,7 @@ class Calibration:
         else:
             fzp = np.maximum(fz, 0.0)
             shear = u * (fzp / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fzp)))[..., None]
-        out = np.concatenate([shear, fz[..., None]], axis=-1)
-        out[~readings.contact] = 0.0
-        return out, clamped
+        return np.concatenate([shear, fz[..., None]], axis=-1), clamped
 
     def apply(self, readings: Readings):
         """A :class:`optitact.forces.ForceField` per frame (a list for stack readings)."""
@@ -408,6 +440,7 @@ class Calibration:
             "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
             "provenance": self.provenance,
             "intensity": self.intensity.to_dict(),
+            **({} if self.crosstalk is None else {"crosstalk": self.crosstalk.to_dict()}),
         }
 
     def save(self, path: str | os.PathLike) -> Path:
@@ -517,3 +550,27 @@ def fit(calibration_set, *, model: str = "coupled", partial: bool = False) -> Ca
                                        "seed": cs.attrs["seed"], "spp": cs.attrs["spp"],
                                        "design": cs.attrs["design"]},
                            intensity=IntensityScale(bits=cs.ccd.bits))
+
+
+def _grey_for_force(cal: Calibration, fz: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The G (T, E) at which ``cal``'s normal curve of each element gives ``fz`` at shift ``u``.
+
+    NaN where no G in ``[0, 2 g_max]`` does (bisection: the curve rises with G on the fitted range).
+    """
+    radius = np.hypot(u[..., 0], u[..., 1])
+    scale = np.divide(np.broadcast_to(cal.u_max, radius.shape), radius, out=np.ones_like(radius),
+                      where=radius > cal.u_max)
+    t = u * scale[..., None] / cal.u_scale[:, None]
+    q = np.sum(t * cal.gu, axis=-1)
+
+    def curve(s):
+        return np.einsum("...ek,ek->...e", g_design(s), cal.g) + s * q
+
+    hi_s = np.broadcast_to(2.0 * cal.g_max / cal.g_scale, fz.shape).copy()
+    lo, hi = np.zeros_like(hi_s), hi_s
+    bracketed = (curve(lo) <= fz) & (curve(hi) >= fz)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        below = curve(mid) < fz
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return np.where(bracketed, 0.5 * (lo + hi) * cal.g_scale, np.nan)
