@@ -842,10 +842,14 @@ def test_take_baseline_splits_the_first_frames():
 
 def test_region_weights_seam(small):
     """The public seam the renderer uses: the pixels each element's region reads."""
-    from optitact.regions import region_weights
+    from optitact.regions import region_weights, split_regions
 
     w = small.region_weights
-    assert w is region_weights(small.grids, SMALL.shape)  # cached per geometry
+    assert small.replace(k=4.0).region_weights is w  # shared in memory per geometry
+    folded = region_weights(split_regions(SENSOR, SMALL), SMALL.shape)  # from the grids themselves
+    for name in ("pixel", "label", "weights", "pixel_area", "n_pixels"):
+        assert getattr(w, name).tobytes() == getattr(folded, name).tobytes(), name
+    assert (w.radius, w.grid_mm) == (folded.radius, folded.grid_mm) == (small.grids.radius, small.grids.grid_mm)
     pixel, label = w.region_pixels([0, 5])
     assert set(np.unique(label)) == {0, 5}
     np.testing.assert_array_equal(pixel, w.pixel[np.isin(w.label, [0, 5])])
