@@ -337,8 +337,8 @@ class Pipeline:
         n_false = self.region_weights.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
-        # (impulse_floor imports scipy.special, a quarter second: only for one-frame baselines)
-        impulse_g = (np.zeros(len(fold.n_pixels)) if self._impulses is None
+        # (impulse_floor imports scipy.special, a quarter second: only for one-frame baselines with impulses)
+        impulse_g = (np.zeros(len(fold.n_pixels)) if self._impulses is None or not self._impulses[0].any()
                      else impulse_floor(self._impulses, fold))
         #: Threshold (grey levels) of each entry of :attr:`region_weights`.
         if self.threshold_map is None:
@@ -371,9 +371,6 @@ class Pipeline:
         frame's spatial fluctuations, as a function of its grey level (None,
         with a warning, when it cannot tell).
         """
-        import cv2
-        from scipy.ndimage import maximum_filter
-
         stack, _ = check_frames(baseline, self.camera, "baseline")
         self._check_scale(stack, "baseline")
         self.baseline_dtype = stack.dtype
@@ -388,6 +385,9 @@ class Pipeline:
             if noise is not None:
                 noise.flags.writeable = False
             return b, noise
+        import cv2
+        from scipy.ndimage import maximum_filter  # a fifth of a second to import: stacks only
+
         var = maximum_filter(_var0(frames), size=3, mode="nearest")
         var = cv2.GaussianBlur(var, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT_101)
         noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))

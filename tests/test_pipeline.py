@@ -1000,6 +1000,28 @@ def test_processing_frames_never_imports_mitsuba():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+def test_process_command_imports_only_what_it_needs(tmp_path):
+    """`optitact process` with a calibration, on .npy frames: no renderer, cluster, learning, plots, stores."""
+    frames = np.zeros((3,) + optitact.FisheyeCamera().shape, np.uint8)
+    frames[2, 200:210, 300:310] = 60
+    np.save(tmp_path / "frames.npy", frames)
+    out = tmp_path / "r.csv"
+    code = (
+        "import sys\n"
+        "import optitact._kernel\n"
+        "optitact._kernel.available = lambda: False  # NumPy sums: no numba compile in a fresh cache\n"
+        "from optitact.cli import main\n"
+        f"rc = main(['process', {str(tmp_path / 'frames.npy')!r}, '--calibration', 'default',\n"
+        f"           '--out', {str(out)!r}])\n"
+        "heavy = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "{'mitsuba', 'drjit', 'dask', 'distributed', 'sklearn', 'matplotlib', 'zarr', 'pandas', 'pyarrow'})\n"
+        "print(rc, heavy)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert run.stdout.split("\n")[-2] == "0 []", run.stdout + run.stderr
+    assert len(out.read_text().splitlines()) == 1 + 3 * N_EL  # it did process every frame
+
+
 
 def test_noise_map_from_a_baseline_stack():
     """A stack baseline raises the threshold where the background is noisy, and only there."""
