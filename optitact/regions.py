@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 
 import numpy as np
 
@@ -547,10 +547,12 @@ def deferred_grids(sensor: DomeSensor, camera: Camera, radius: float, grid_mm: f
     :class:`RegionWeights`); the coordinates, radius, cell size and number
     of regions are there at once.
     """
-
-    def build() -> tuple:
-        g = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
-        return g.pixels, g.area, g.mask
-
+    build = partial(_grid_arrays, sensor, camera, radius, grid_mm)
     return RegionGrids(_coords(radius, grid_mm), float(grid_mm), float(radius), None, None, None,
                        n_elements=sensor.n_elements, build=build)
+
+
+def _grid_arrays(sensor: DomeSensor, camera: Camera, radius: float, grid_mm: float) -> tuple:
+    """``(pixels, area, mask)`` of :func:`split_regions` (a module function: deferred grids pickle)."""
+    g = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
+    return g.pixels, g.area, g.mask

@@ -8,6 +8,8 @@ never trusted.
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -150,6 +152,8 @@ def test_pipeline_readings_identical_cold_and_cached_and_grids_deferred(cache, m
         assert getattr(cold, name).tobytes() == getattr(warm, name).tobytes(), name
     assert warm.contact.any()
     assert pipe.grids._arrays is None  # the fast method never built the grids
+    sent = pickle.loads(pickle.dumps(pipe))  # as a cluster ships it: the grids still deferred
+    assert sent.grids._arrays is None and sent.process(frames).G.tobytes() == warm.G.tobytes()
     assert pipe.grids.n_elements == SENSOR.n_elements and pipe.grids.radius == pipe.region_weights.radius
     ref = pipe.replace(method="reference")
     assert ref.grids is pipe.grids
