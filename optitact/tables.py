@@ -408,12 +408,34 @@ class _PartialParquet:
         self._rows = 0
 
     def write(self, columns: dict) -> None:
-        batch = self._pa.RecordBatch.from_arrays([self._pa.array(columns[f.name], f.type) for f in self.schema],
+        """Add rows: ``columns`` maps every column name to its values (a source column: ``(names, repeat)``)."""
+        batch = self._pa.RecordBatch.from_arrays([self._column(columns[f.name], f.type) for f in self.schema],
                                                  schema=self.schema)
         self._batches.append(batch)
         self._rows += batch.num_rows
         if self._rows >= PARQUET_ROW_GROUP:
             self.flush()
+
+    def _column(self, values, kind):
+        """An Arrow array from buffers (``pyarrow.array`` would import pandas: half a second)."""
+        pa = self._pa
+        if kind == pa.string():
+            names, repeat = values
+            enc = [str(name).encode("utf-8") for name in names]
+            lengths = np.repeat(np.array([len(e) for e in enc], np.int64), repeat)
+            offsets = np.zeros(len(lengths) + 1, np.int64)
+            np.cumsum(lengths, out=offsets[1:])
+            if offsets[-1] >= 2**31:
+                raise InputError("source names too long for one Parquet batch")
+            data = b"".join(e * repeat for e in enc)
+            return pa.Array.from_buffers(kind, len(lengths), [None, pa.py_buffer(offsets.astype(np.int32)),
+                                                               pa.py_buffer(data)])
+        if kind == pa.bool_():
+            flags = np.asarray(values, bool).reshape(-1)
+            bits = np.packbits(flags, bitorder="little")
+            return pa.Array.from_buffers(kind, len(flags), [None, pa.py_buffer(bits)])
+        arr = np.ascontiguousarray(values, dtype=kind.to_pandas_dtype()).reshape(-1)
+        return pa.Array.from_buffers(kind, len(arr), [None, pa.py_buffer(arr)])
 
     def flush(self) -> None:
         """Write the gathered rows as a row group."""
@@ -579,10 +601,10 @@ class ReadingsWriter:
         if self.format == "parquet":
             names = self._files[0].schema.names
             table = {"frame": np.repeat(frame_ids, n_el), "element": np.tile(np.arange(n_el), n),
-                     "source": np.repeat(np.asarray(sources, object), n_el)}
-            self._files[0].write(table | {k: np.ravel(cols[k]) for k in names[3:]})
+                     "source": (sources, n_el)}
+            self._files[0].write(table | {k: cols[k] for k in names[3:]})
             if per_frame is not None:
-                self._files[1].write({"frame": frame_ids, "source": list(sources)} | per_frame)
+                self._files[1].write({"frame": frame_ids, "source": (sources, 1)} | per_frame)
             self.frames += n
             return
         heads = [f"{self.frames + k},{_csv_cell(src)}," for k, src in enumerate(sources)]
