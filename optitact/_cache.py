@@ -19,10 +19,13 @@ import numpy as np
 
 from .io import atomic_write, json_fingerprint, write_npy
 
-__all__ = ["PRECOMPUTE_FORMAT", "cache_dir", "cached_arrays", "cached_render", "precompute_cache_enabled"]
+__all__ = ["CACHE_KEEP", "PRECOMPUTE_FORMAT", "cache_dir", "cached_arrays", "cached_render",
+           "precompute_cache_enabled"]
 
 #: Format of :func:`cached_arrays`' files; part of every key, bumped when what is stored changes.
 PRECOMPUTE_FORMAT = 1
+#: Files :func:`cached_arrays` keeps per folder: the least recently used beyond them are removed.
+CACHE_KEEP = 64
 
 
 def cache_dir() -> Path:
@@ -106,7 +109,8 @@ def cached_arrays(kind: str, key: dict, build: Callable[[], dict], check: Callab
     A file that cannot be read, whose stored fingerprint is not its key's,
     whose ZIP checksums fail or that ``check`` refuses is never trusted: the
     arrays are rebuilt and the file replaced. A cache folder that cannot be
-    written only costs the rebuild next time.
+    written only costs the rebuild next time. The folder keeps the
+    :data:`CACHE_KEEP` most recently used files.
     """
     from . import __version__
 
@@ -124,6 +128,10 @@ def cached_arrays(kind: str, key: dict, build: Callable[[], dict], check: Callab
         if str(arrays.pop("fingerprint")) != name:
             raise ValueError(f"{path} holds another key")
         check(arrays)
+        try:
+            os.utime(path)  # recently used: kept longest
+        except OSError:
+            pass
         return arrays
     except Exception:  # missing, truncated, corrupt, foreign: rebuilt, never trusted
         pass
@@ -135,6 +143,23 @@ def cached_arrays(kind: str, key: dict, build: Callable[[], dict], check: Callab
 
     try:
         atomic_write(path, write)
+        _prune(path.parent, CACHE_KEEP)
     except OSError:
         pass
     return arrays
+
+
+def _prune(folder: Path, keep: int) -> None:
+    """Remove the least recently used ``.npz`` files of ``folder`` beyond the ``keep`` newest."""
+    files = []
+    for entry in os.scandir(folder):
+        if entry.name.endswith(".npz") and entry.is_file(follow_symlinks=False):
+            try:
+                files.append((entry.stat().st_mtime, entry.path))
+            except FileNotFoundError:
+                pass
+    for _, old in sorted(files)[:max(len(files) - keep, 0)]:
+        try:
+            os.unlink(old)
+        except FileNotFoundError:
+            pass

@@ -160,3 +160,22 @@ def test_pipeline_readings_identical_cold_and_cached_and_grids_deferred(cache, m
     r = ref.process(frames)
     np.testing.assert_allclose(r.G, warm.G, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(pipe.grids.mask, split_regions(SENSOR, CAM).mask)
+
+
+def test_the_folder_keeps_the_most_recently_used_files(cache, monkeypatch):
+    import os
+
+    from optitact import _cache
+
+    folder, calls = cache
+    monkeypatch.setattr(_cache, "CACHE_KEEP", 2)
+    fold_regions(SENSOR, CAM)  # A
+    (first,) = folder.glob("*.npz")
+    fold_regions(SENSOR, CAM, radius=3.0)  # B
+    os.utime(first, (1, 1))  # A long unused ...
+    _from_disk()  # ... then read again: the most recent
+    (second,) = set(folder.glob("*.npz")) - {first}
+    os.utime(second, (2, 2))
+    fold_regions(SENSOR, CAM, radius=2.5)  # C: B, the least recently used, goes
+    left = set(folder.glob("*.npz"))
+    assert len(left) == 2 and first in left and second not in left
