@@ -3,7 +3,8 @@
 :func:`process_files` reads every frame of the sources in order, turns them
 into readings with a :class:`~optitact.Pipeline` (and into forces with a
 calibration), and returns the table or writes it as CSV
-(:class:`~optitact.tables.ReadingsWriter`). ``optitact process`` is this function
+(:class:`~optitact.tables.ReadingsWriter`), or as Parquet for a name ending in
+``.parquet``. ``optitact process`` is this function
 behind a command line; it runs here, or on a Dask cluster with one task per
 file (the same table either way).
 
@@ -214,7 +215,10 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         be all baseline has nothing to measure and is an error.
     out : path-like, optional
         Write the table as CSV here instead of keeping it in memory (with a
-        calibration also ``NAME.per_frame.csv`` beside it, one row per frame).
+        calibration also ``NAME.per_frame.csv`` beside it, one row per frame);
+        a name ending in ``.parquet`` writes Parquet tables instead (the
+        ``columnar`` extra: the same columns, written in row groups as frames
+        come, read by ``pandas.read_parquet``).
         The files appear when the run is complete (a temporary file is
         renamed), so an existing ``out`` is never replaced by a partial table;
         if the run fails, the rows of the frames done so far are kept as

@@ -53,7 +53,9 @@ from .regions import (
     RegionGrids,
     RegionWeights,
     default_region_radius,
+    deferred_grids,
     dewarp,
+    fold_regions,
     integrate,
     region_weights,
     split_regions,
@@ -167,6 +169,10 @@ class Pipeline:
         maximum (255, 65535), none for float frames.
     radius, grid_mm : float, optional
         Region radius and dewarp cell size (mm); see :func:`split_regions`.
+        The regions' folded weights (:func:`~optitact.regions.fold_regions`)
+        are cached in the user cache folder, so a pipeline for a sensor and
+        camera seen before starts in milliseconds; the grids themselves
+        (:attr:`grids`) are built only if the reference method needs them.
     bits : int, optional
         Bit depth of the frames' grey levels (1 to 16), e.g. 12 for 12-bit
         data in ``uint16`` frames. When given, integer frames (and the
@@ -319,16 +325,21 @@ class Pipeline:
             if self._one_frame and not np.any(self.threshold_map > self.threshold):
                 self.threshold_map = None  # the estimate raises no pixel: one threshold everywhere
         self._geometry = dict(radius=radius, grid_mm=grid_mm)  # as given: replace() hits the cache
-        self.grids = split_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
-        #: Per-(element, pixel) weights of the regions (:func:`~optitact.regions.region_weights`).
-        self.region_weights = region_weights(self.grids, camera.shape)
+        #: Per-(element, pixel) weights of the regions (:func:`~optitact.regions.region_weights`),
+        #: cached on disk by :func:`~optitact.regions.fold_regions`.
+        self.region_weights = fold_regions(sensor, camera, radius=radius, grid_mm=grid_mm)
+        #: The region grids (:func:`~optitact.regions.split_regions`); their arrays are built on
+        #: first use (the reference method), never by the fast method.
+        self.grids = deferred_grids(sensor, camera, self.region_weights.radius, self.region_weights.grid_mm)
         #: Per-region noise floor of G (grey level x mm^2).
         # Noise alone lights n Q(k) of a region's n independent samples on average:
         # the floor adds that count and 3 of its (Poisson) standard deviations.
         n_false = self.region_weights.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
-        impulse_g = impulse_floor(self._impulses, fold)
+        # (impulse_floor imports scipy.special, a quarter second: only for one-frame baselines with impulses)
+        impulse_g = (np.zeros(len(fold.n_pixels)) if self._impulses is None or not self._impulses[0].any()
+                     else impulse_floor(self._impulses, fold))
         #: Threshold (grey levels) of each entry of :attr:`region_weights`.
         if self.threshold_map is None:
             self.entry_threshold = np.full(len(fold.pixel), self.threshold)
@@ -360,9 +371,6 @@ class Pipeline:
         frame's spatial fluctuations, as a function of its grey level (None,
         with a warning, when it cannot tell).
         """
-        import cv2
-        from scipy.ndimage import maximum_filter
-
         stack, _ = check_frames(baseline, self.camera, "baseline")
         self._check_scale(stack, "baseline")
         self.baseline_dtype = stack.dtype
@@ -377,6 +385,9 @@ class Pipeline:
             if noise is not None:
                 noise.flags.writeable = False
             return b, noise
+        import cv2
+        from scipy.ndimage import maximum_filter  # a fifth of a second to import: stacks only
+
         var = maximum_filter(_var0(frames), size=3, mode="nearest")
         var = cv2.GaussianBlur(var, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT_101)
         noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
@@ -430,7 +441,10 @@ class Pipeline:
         opts = self._options() | {"baseline": self._baseline_input} | changes
         if "filter" in changes and "filter_size" not in changes:
             opts["filter_size"] = None
-        return Pipeline(self.sensor, self.camera, **opts)
+        out = Pipeline(self.sensor, self.camera, **opts)
+        if out.region_weights is self.region_weights:
+            out.grids = self.grids  # the same geometry: built at most once
+        return out
 
     def with_baseline(self, frames) -> Pipeline:
         """The same pipeline with ``frames`` (a frame or the mean of a stack) as no-load baseline."""

@@ -29,10 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, ShapeError
+from .errors import InputError, MissingExtraError, ShapeError
 
 __all__ = ["read_forces_csv", "write_forces_csv", "ReadingsWriter", "read_element_table", "csv_rows",
-           "csv_numbers", "column_key", "sniff_delimiter", "partial_path", "per_frame_path"]
+           "csv_numbers", "column_key", "sniff_delimiter", "partial_path", "per_frame_path",
+           "PARQUET_ROW_GROUP"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -352,6 +353,12 @@ class _PartialFile:
         self.fh = self.tmp.open("w", newline="", encoding="utf-8")
         self.fh.write(",".join(header) + "\r\n")
 
+    def write(self, text: str) -> None:
+        self.fh.write(text)
+
+    def flush(self) -> None:
+        self.fh.flush()
+
     def finish(self, to: Path | None) -> None:
         """Close, then rename to ``to`` (None: delete)."""
         if not self.fh.closed:
@@ -362,8 +369,115 @@ class _PartialFile:
             os.replace(self.tmp, to)
 
 
+#: Rows gathered before :class:`ReadingsWriter` writes a Parquet row group.
+PARQUET_ROW_GROUP = 65536
+#: Arrow types of the columns of the Parquet tables (the rest are float64).
+_PARQUET_TYPES = {"frame": "int64", "source": "string", "element": "int64", "contact": "bool_",
+                  "saturated": "bool_", "clamped": "bool_", "n_contact": "int64", "n_clamped": "int64"}
+
+
+def _pyarrow():
+    """``pyarrow`` and ``pyarrow.parquet``, or MissingExtraError naming the ``columnar`` extra."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] != "pyarrow":
+            raise
+        raise MissingExtraError("pyarrow is needed for Parquet tables (.parquet) but is not installed: "
+                                "pip install 'optitact[columnar]'") from None
+    return pa, pq
+
+
+class _PartialParquet:
+    """A Parquet file written beside ``path`` as ``.NAME.PID.partial`` in row groups, renamed when complete.
+
+    Rows are gathered until :data:`PARQUET_ROW_GROUP` of them make a row
+    group; closing writes the last one and the footer (a Parquet file is
+    readable only then: the hidden file of a killed run is never one).
+    """
+
+    def __init__(self, path: Path, header: Sequence[str]) -> None:
+        pa, pq = _pyarrow()
+        self.path = path
+        self.tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        self._pa = pa
+        self.schema = pa.schema([(name, getattr(pa, _PARQUET_TYPES.get(name, "float64"))()) for name in header])
+        self._writer = pq.ParquetWriter(self.tmp, self.schema)
+        self._batches: list = []
+        self._rows = 0
+
+    def write(self, columns: dict) -> None:
+        """Add rows: ``columns`` maps every column name to its values (a source column: ``(names, repeat)``)."""
+        batch = self._pa.RecordBatch.from_arrays([self._column(columns[f.name], f.type) for f in self.schema],
+                                                 schema=self.schema)
+        self._batches.append(batch)
+        self._rows += batch.num_rows
+        if self._rows >= PARQUET_ROW_GROUP:
+            self.flush()
+
+    def _column(self, values, kind):
+        """An Arrow array from buffers (``pyarrow.array`` would import pandas: half a second)."""
+        pa = self._pa
+        if kind == pa.string():
+            names, repeat = values
+            enc = [str(name).encode("utf-8") for name in names]
+            lengths = np.repeat(np.array([len(e) for e in enc], np.int64), repeat)
+            offsets = np.zeros(len(lengths) + 1, np.int64)
+            np.cumsum(lengths, out=offsets[1:])
+            if offsets[-1] >= 2**31:
+                raise InputError("source names too long for one Parquet batch")
+            data = b"".join(e * repeat for e in enc)
+            return pa.Array.from_buffers(kind, len(lengths), [None, pa.py_buffer(offsets.astype(np.int32)),
+                                                               pa.py_buffer(data)])
+        if kind == pa.bool_():
+            flags = np.asarray(values, bool).reshape(-1)
+            bits = np.packbits(flags, bitorder="little")
+            return pa.Array.from_buffers(kind, len(flags), [None, pa.py_buffer(bits)])
+        arr = np.ascontiguousarray(values, dtype=kind.to_pandas_dtype()).reshape(-1)
+        return pa.Array.from_buffers(kind, len(arr), [None, pa.py_buffer(arr)])
+
+    def flush(self) -> None:
+        """Write the gathered rows as a row group."""
+        if self._rows:
+            self._writer.write_table(self._pa.Table.from_batches(self._batches, self.schema),
+                                     row_group_size=self._rows)
+            self._batches, self._rows = [], 0
+
+    def finish(self, to: Path | None) -> None:
+        """Close (footer written), then rename to ``to`` (None: delete)."""
+        if self._writer is not None:
+            try:
+                if to is not None:
+                    self.flush()
+            finally:
+                self._writer.close()
+                self._writer = None
+        if to is None:
+            self.tmp.unlink(missing_ok=True)
+        elif self.tmp.exists():
+            os.replace(self.tmp, to)
+
+
+def _csv_block(heads: Sequence[str], columns: Sequence[list], n_el: int) -> str:
+    """CSV rows: ``heads[k]`` then ``columns``' cells of rows ``k n_el .. (k+1) n_el - 1`` (ints and floats).
+
+    One ``repr`` of the whole block: Python writes each float with the
+    shortest digits that read back to the same float64, as ``repr(x)`` does,
+    without a format call per cell.
+    """
+    if not n_el or not columns:
+        return ""
+    rows = list(zip(*columns, strict=True))
+    out = []
+    for k, head in enumerate(heads):
+        body = repr(rows[k * n_el:(k + 1) * n_el])[2:-2].replace(", ", ",")
+        out.append(head + body.replace("),(", "\r\n" + head) + "\r\n")
+    return "".join(out)
+
+
 class ReadingsWriter:
-    """Append readings (and estimated forces) to a CSV file, one row per frame and element.
+    """Append readings (and estimated forces) to a CSV or Parquet file, one row per frame and element.
 
     Columns: ``frame, source, element, G, ux, uy, contact, saturated`` (G in
     grey level x mm^2, u in mm, flags as 0/1; numbers written with the
@@ -381,6 +495,13 @@ class ReadingsWriter:
     :class:`~optitact.forces.ForceField` computes them. Both tables read with
     ``pandas.read_csv`` as they are. Use as a context manager.
 
+    A ``path`` ending in ``.parquet`` writes Parquet instead (the
+    ``columnar`` extra, pyarrow): the same columns and values (flags as
+    booleans, the centre of pressure NaN where the CSV leaves it empty),
+    written in row groups of :data:`PARQUET_ROW_GROUP` rows as frames come;
+    ``pandas.read_parquet`` reads it. For long recordings: about a fifth of
+    the CSV's size, and no number formatting.
+
     Rows go to a hidden temporary file beside ``path`` (``.NAME.PID.partial``),
     renamed to ``path`` on :meth:`close`: a reader never sees half a table,
     and an existing ``path`` stays as it was until the new table is complete.
@@ -392,7 +513,14 @@ class ReadingsWriter:
     With ``visible=True`` (a live stream, which has no end to wait for) the
     rows go to :func:`partial_path` from the start instead, so that readers
     see them as they come (call :meth:`flush` after each frame); ``close``
-    renames them just the same.
+    renames them just the same. CSV only.
+
+    Raises
+    ------
+    MissingExtraError
+        A ``.parquet`` path without pyarrow installed.
+    InputError
+        ``visible=True`` with a ``.parquet`` path.
     """
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
@@ -412,20 +540,33 @@ class ReadingsWriter:
                 raise TypeError(f"a ReadingsWriter with forces needs the sensor (a DomeSensor) for the "
                                 f"global forces, got {type(sensor).__name__}")
         self.sensor = sensor
+        #: ``"csv"`` or ``"parquet"`` (a path ending in ``.parquet``).
+        self.format = "parquet" if self.path.suffix.lower() == ".parquet" else "csv"
+        if self.format == "parquet" and visible:
+            raise InputError(f"{self.path}: a Parquet table is readable only once complete; write a live "
+                             f"stream as CSV")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        def partial(target: Path, header: Sequence[str]) -> _PartialFile:
+
+        def partial(target: Path, header: Sequence[str]):
+            if self.format == "parquet":
+                return _PartialParquet(target, header)
             return _PartialFile(target, header, partial_path(target) if visible else None)
 
         self._files = [partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))]
         if forces:
-            self._files.append(partial(per_frame_path(self.path), self.FRAME_COLUMNS))
-        self._fh = self._files[0].fh
+            try:
+                self._files.append(partial(per_frame_path(self.path), self.FRAME_COLUMNS))
+            except BaseException:
+                self._files[0].finish(None)
+                raise
+        if self.format == "csv":
+            self._fh = self._files[0].fh
         self.frames = 0
 
     def flush(self) -> None:
         """Hand the rows written so far to the operating system (they survive a crash of this process)."""
         for f in self._files:
-            f.fh.flush()
+            f.flush()
 
     @property
     def paths(self) -> list[Path]:
@@ -438,47 +579,50 @@ class ReadingsWriter:
         n, n_el = len(r), r.n_elements
         if n != len(sources):
             raise ShapeError(f"got readings of {n} frames for {len(sources)} sources")
-        # repr of a Python float is the shortest string that reads back to the same float64, so
-        # sums over the file (10^6 rows and more) equal sums over the readings bit for bit
-        g, ux, uy = r.G.tolist(), r.u[..., 0].tolist(), r.u[..., 1].tolist()
-        contact, saturated = r.contact.tolist(), r.saturated.tolist()
-        elements = range(n_el)
-        lines: list[str] = []
-        if not self.with_forces:
-            for k, src in enumerate(sources):
-                head = f"{self.frames + k},{_csv_cell(src)},"
-                lines += [f"{head}{i},{a!r},{b!r},{c!r},{d:d},{e:d}\r\n"
-                          for i, a, b, c, d, e
-                          in zip(elements, g[k], ux[k], uy[k], contact[k], saturated[k], strict=True)]
-            self._files[0].fh.write("".join(lines))
+        cols = {"G": r.G, "ux": r.u[..., 0], "uy": r.u[..., 1], "contact": r.contact, "saturated": r.saturated}
+        per_frame = None
+        if self.with_forces:
+            if forces is None or clamped is None:
+                raise ValueError("this writer has force columns: pass forces and clamped")
+            from optitact.forces import frame_totals
+
+            f = np.asarray(forces, dtype=np.float64).reshape(n, n_el, 3)
+            cl = np.asarray(clamped, dtype=bool).reshape(n, n_el)
+            tot = frame_totals(self.sensor, f, r.contact)
+            gl = tot["global"]
+            cols |= {"fx": f[..., 0], "fy": f[..., 1], "fz": f[..., 2], "fx_global": gl[..., 0],
+                     "fy_global": gl[..., 1], "fz_global": gl[..., 2], "clamped": cl}
+            res, cop = tot["resultant"], tot["centre_of_pressure"]
+            per_frame = {"n_contact": np.asarray(tot["n_contact"], np.int64), "n_clamped": cl.sum(axis=1),
+                         "total_normal": np.asarray(tot["total_normal"], np.float64),
+                         **{f"resultant_{a}": res[:, i] for i, a in enumerate("xyz")},
+                         **{f"centre_of_pressure_{a}": cop[:, i] for i, a in enumerate("xyz")}}
+        frame_ids = np.arange(self.frames, self.frames + n)
+        if self.format == "parquet":
+            names = self._files[0].schema.names
+            table = {"frame": np.repeat(frame_ids, n_el), "element": np.tile(np.arange(n_el), n),
+                     "source": (sources, n_el)}
+            self._files[0].write(table | {k: cols[k] for k in names[3:]})
+            if per_frame is not None:
+                self._files[1].write({"frame": frame_ids, "source": (sources, 1)} | per_frame)
             self.frames += n
             return
-        if forces is None or clamped is None:
-            raise ValueError("this writer has force columns: pass forces and clamped")
-        from optitact.forces import frame_totals
-
-        f = np.asarray(forces, dtype=np.float64).reshape(n, n_el, 3)
-        cl = np.asarray(clamped, dtype=bool).reshape(n, n_el)
-        tot = frame_totals(self.sensor, f, r.contact)
-        fx, fy, fz = f[..., 0].tolist(), f[..., 1].tolist(), f[..., 2].tolist()
-        gl = tot["global"]
-        gx, gy, gz = gl[..., 0].tolist(), gl[..., 1].tolist(), gl[..., 2].tolist()
-        clamped_ = cl.tolist()
-        per_frame = []
-        res, cop = tot["resultant"].tolist(), tot["centre_of_pressure"].tolist()
-        for k, src in enumerate(sources):
-            cell = _csv_cell(src)
-            head = f"{self.frames + k},{cell},"
-            lines += [f"{head}{i},{a!r},{b!r},{c!r},{d:d},{e:d},{p!r},{q!r},{s!r},{x!r},{y!r},{z!r},{h:d}\r\n"
-                      for i, a, b, c, d, e, p, q, s, x, y, z, h
-                      in zip(elements, g[k], ux[k], uy[k], contact[k], saturated[k], fx[k], fy[k], fz[k],
-                             gx[k], gy[k], gz[k], clamped_[k], strict=True)]
-            where = ",".join("" if math.isnan(v) else repr(v) for v in cop[k])
-            per_frame.append(f"{head}{int(tot['n_contact'][k])},{int(cl[k].sum())},"
-                             f"{float(tot['total_normal'][k])!r},{res[k][0]!r},{res[k][1]!r},{res[k][2]!r},"
-                             f"{where}\r\n")
-        self._files[0].fh.write("".join(lines))
-        self._files[1].fh.write("".join(per_frame))
+        heads = [f"{self.frames + k},{_csv_cell(src)}," for k, src in enumerate(sources)]
+        names = self.COLUMNS[3:] + (self.FORCE_COLUMNS if self.with_forces else ())
+        columns = [list(range(n_el)) * n]
+        for name in names:
+            v = cols[name]
+            columns.append((v.view(np.uint8) if v.dtype == bool else v).reshape(-1).tolist())
+        self._files[0].write(_csv_block(heads, columns, n_el))
+        if per_frame is not None:
+            lines = []
+            res, cop = per_frame, tot["centre_of_pressure"].tolist()
+            for k, head in enumerate(heads):
+                where = ",".join("" if math.isnan(v) else repr(v) for v in cop[k])
+                lines.append(f"{head}{int(res['n_contact'][k])},{int(res['n_clamped'][k])},"
+                             f"{float(res['total_normal'][k])!r},{float(res['resultant_x'][k])!r},"
+                             f"{float(res['resultant_y'][k])!r},{float(res['resultant_z'][k])!r},{where}\r\n")
+            self._files[1].write("".join(lines))
         self.frames += n
 
     def close(self) -> None:

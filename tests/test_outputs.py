@@ -179,3 +179,146 @@ def test_force_field_to_csv_is_atomic(tmp_path, monkeypatch):
         ForceField(SENSOR, 2 * f).to_csv(path)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ff.csv"]
+
+
+# ---------------------------------------------------------------------------- Parquet and the CSV's numbers
+def _calibration():
+    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
+
+    shipped = json.loads(DEFAULT_CALIBRATION.read_text())
+    shipped.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
+    return Calibration.from_dict(shipped)
+
+
+def _loaded_frames(n: int, seed: int) -> np.ndarray:
+    """Frames with bright spots on a few regions (contacts, forces), the first one unloaded."""
+    rng = np.random.default_rng(seed)
+    frames = rng.integers(0, 3, (n, *CAM.shape)).astype(np.uint8)
+    for t in range(1, n):
+        for _ in range(3):
+            r, c = rng.integers(10, 50), rng.integers(10, 70)
+            frames[t, r:r + 3, c:c + 3] = rng.integers(30, 255)
+    return frames
+
+
+def test_parquet_table_equals_the_csv_of_the_same_run(tmp_path, monkeypatch):
+    pd = pytest.importorskip("pandas")
+    pq = pytest.importorskip("pyarrow.parquet")
+    from optitact import tables
+
+    monkeypatch.setattr(tables, "PARQUET_ROW_GROUP", 41)  # a row group per write: several in a short run
+    np.save(tmp_path / "rec.npy", _loaded_frames(9, seed=6))
+    cal = _calibration()
+    for name in ("t.csv", "t.parquet"):
+        process_files([tmp_path / "rec.npy"], calibration=cal, out=tmp_path / name, batch=4)
+    assert pq.ParquetFile(tmp_path / "t.parquet").metadata.num_row_groups >= 3
+    for csv_name, pq_name in (("t.csv", "t.parquet"), ("t.per_frame.csv", "t.per_frame.parquet")):
+        a, b = pd.read_csv(tmp_path / csv_name), pd.read_parquet(tmp_path / pq_name)
+        assert list(a.columns) == list(b.columns) and len(a) == len(b) > 0
+        for col in a.columns:
+            x, y = a[col].to_numpy(), b[col].to_numpy()
+            if y.dtype == bool:
+                y = y.astype(np.int64)
+            if x.dtype.kind == "f":
+                np.testing.assert_array_equal(x, y, err_msg=col)  # bit for bit, NaN where the CSV is empty
+            else:
+                assert (x == y).all(), col
+    table = pd.read_parquet(tmp_path / "t.parquet")
+    assert table["contact"].dtype == bool and table["contact"].any() and table["fz"].abs().max() > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npy", "t.csv", "t.parquet", "t.per_frame.csv",
+                                                         "t.per_frame.parquet"]
+
+
+KILLED_PARQUET = textwrap.dedent("""
+    import os, sys
+    import optitact
+    from optitact import tables
+    from optitact.batch import process_files
+    from optitact.io import ReadingsWriter
+
+    tables.PARQUET_ROW_GROUP = 41   # a row group per frame: some reach the disk before the kill
+    real, calls = ReadingsWriter.write, []
+
+    def write_then_die(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            os._exit(9)
+
+    ReadingsWriter.write = write_then_die
+    pipe = optitact.Pipeline(optitact.DomeSensor.default(), optitact.FisheyeCamera(width=80, height=60))
+    process_files([sys.argv[1]], pipeline=pipe, out=sys.argv[2], batch=3)
+""")
+
+
+def test_a_killed_parquet_run_leaves_no_file_under_the_real_name(tmp_path):
+    pq = pytest.importorskip("pyarrow.parquet")
+    np.save(tmp_path / "rec.npy", _frames(10, seed=7))
+    out = tmp_path / "out.parquet"
+    r = subprocess.run([sys.executable, "-c", KILLED_PARQUET, str(tmp_path / "rec.npy"), str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 9, r.stderr
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name != "rec.npy")
+    assert len(left) == 1 and left[0].startswith(".out.parquet.") and left[0].endswith(".partial"), left
+    assert (tmp_path / left[0]).stat().st_size > 0  # row groups were written, but no footer: not a table
+    with pytest.raises(Exception, match="(?i)parquet"):
+        pq.read_table(tmp_path / left[0])
+    process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out)
+    assert pq.read_table(out).num_rows == 10 * 41
+
+
+def test_a_failed_parquet_run_keeps_a_readable_partial_table(tmp_path):
+    pq = pytest.importorskip("pyarrow.parquet")
+    frames = _frames(7, seed=1)
+    frames[5, 3, 4] = np.nan
+    np.save(tmp_path / "rec.npy", frames)
+    out = tmp_path / "out.parquet"
+    with pytest.raises(InputError, match="out.partial.parquet, a partial table"):
+        process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out, batch=2)
+    table = pq.read_table(tmp_path / "out.partial.parquet")
+    assert table.num_rows == 5 * 41 and table.column("source")[-1].as_py() == "rec.npy#4"
+    assert not out.exists()
+
+
+def test_parquet_without_pyarrow_is_one_line_naming_the_extra(tmp_path, monkeypatch, capsys):
+    from optitact.errors import MissingExtraError
+    from optitact.io import ReadingsWriter
+
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
+    monkeypatch.setitem(sys.modules, "pyarrow.parquet", None)
+    with pytest.raises(MissingExtraError, match=r"pip install 'optitact\[columnar\]'"):
+        ReadingsWriter(tmp_path / "r.parquet")
+    np.save(tmp_path / "rec.npy", _frames(3))
+    assert main(["process", str(tmp_path / "rec.npy"), "--out", str(tmp_path / "r.parquet")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("optitact: error: pyarrow is needed for Parquet tables")
+    assert [line for line in err if "error" in line or "Traceback" in line] == err[-1:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npy"]
+    with pytest.raises(InputError, match="Parquet table is readable only once complete"):
+        monkeypatch.delitem(sys.modules, "pyarrow")
+        ReadingsWriter(tmp_path / "r.parquet", visible=True)
+
+
+def test_csv_numbers_read_back_bit_for_bit(tmp_path):
+    """The block formatting writes every float as repr does: shortest digits, -0.0, nan, tiny and huge."""
+    from optitact.io import ReadingsWriter
+    from optitact.readings import Readings
+
+    rng = np.random.default_rng(8)
+    g = rng.random((3, 41)) * 10.0 ** rng.integers(-300, 300, (3, 41))
+    g[0, :4] = [0.0, np.nan, 5e-324, 1.7976931348623157e308]
+    u = rng.normal(size=(3, 41, 2))
+    u[1, 2] = [-0.0, 1e16]
+    r = Readings(g, u, g > 1.0, g > 1e100)
+    sources = ['a,"b".npy#0', "plain#1", "x\ny#2"]
+    with ReadingsWriter(tmp_path / "r.csv") as w:
+        w.write(r[:1], sources[:1])
+        w.write(r[1:], sources[1:])
+    rows = _rows(tmp_path / "r.csv")
+    assert [row["source"] for row in rows[::41]] == sources and len(rows) == 3 * 41
+    for name, want in (("G", g), ("ux", u[..., 0]), ("uy", u[..., 1])):
+        got = np.array([float(row[name]) for row in rows]).reshape(3, 41)
+        assert got.tobytes() == want.tobytes(), name
+        assert [row[name] for row in rows] == [repr(v) for v in want.reshape(-1).tolist()]
+    assert [int(row["contact"]) for row in rows] == (g > 1.0).astype(int).reshape(-1).tolist()
+    assert [int(row["element"]) for row in rows] == list(range(41)) * 3

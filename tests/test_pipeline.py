@@ -842,10 +842,14 @@ def test_take_baseline_splits_the_first_frames():
 
 def test_region_weights_seam(small):
     """The public seam the renderer uses: the pixels each element's region reads."""
-    from optitact.regions import region_weights
+    from optitact.regions import region_weights, split_regions
 
     w = small.region_weights
-    assert w is region_weights(small.grids, SMALL.shape)  # cached per geometry
+    assert small.replace(k=4.0).region_weights is w  # shared in memory per geometry
+    folded = region_weights(split_regions(SENSOR, SMALL), SMALL.shape)  # from the grids themselves
+    for name in ("pixel", "label", "weights", "pixel_area", "n_pixels"):
+        assert getattr(w, name).tobytes() == getattr(folded, name).tobytes(), name
+    assert (w.radius, w.grid_mm) == (folded.radius, folded.grid_mm) == (small.grids.radius, small.grids.grid_mm)
     pixel, label = w.region_pixels([0, 5])
     assert set(np.unique(label)) == {0, 5}
     np.testing.assert_array_equal(pixel, w.pixel[np.isin(w.label, [0, 5])])
@@ -994,6 +998,28 @@ def test_processing_frames_never_imports_mitsuba():
         "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_process_command_imports_only_what_it_needs(tmp_path):
+    """`optitact process` with a calibration, on .npy frames: no renderer, cluster, learning, plots, stores."""
+    frames = np.zeros((3,) + optitact.FisheyeCamera().shape, np.uint8)
+    frames[2, 200:210, 300:310] = 60
+    np.save(tmp_path / "frames.npy", frames)
+    out = tmp_path / "r.csv"
+    code = (
+        "import sys\n"
+        "import optitact._kernel\n"
+        "optitact._kernel.available = lambda: False  # NumPy sums: no numba compile in a fresh cache\n"
+        "from optitact.cli import main\n"
+        f"rc = main(['process', {str(tmp_path / 'frames.npy')!r}, '--calibration', 'default',\n"
+        f"           '--out', {str(out)!r}])\n"
+        "heavy = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "{'mitsuba', 'drjit', 'dask', 'distributed', 'sklearn', 'matplotlib', 'zarr', 'pandas', 'pyarrow'})\n"
+        "print(rc, heavy)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert run.stdout.split("\n")[-2] == "0 []", run.stdout + run.stderr
+    assert len(out.read_text().splitlines()) == 1 + 3 * N_EL  # it did process every frame
 
 
 

@@ -33,6 +33,51 @@ def _each(pipe, frames) -> None:
         pipe.process(f)
 
 
+def _start_up(sensor, camera, baseline, frame, *, repeats: int) -> tuple[float, float, float]:
+    """Pipeline construction without and with the precompute cache, and a fresh process on one frame (s).
+
+    Medians over ``repeats``; the in-memory copies are forgotten before
+    each construction, so "cached" is a load from the cache folder.
+    """
+    import os
+    import subprocess
+    import tempfile
+
+    from optitact import regions
+    from optitact.pipeline import Pipeline
+
+    def build(cache: bool) -> float:
+        regions._fold_cached.cache_clear()
+        old = os.environ.get("OPTITACT_PRECOMPUTE_CACHE")
+        os.environ["OPTITACT_PRECOMPUTE_CACHE"] = "1" if cache else "0"
+        try:
+            t = time.perf_counter()
+            Pipeline(sensor, camera, baseline=baseline)
+            return time.perf_counter() - t
+        finally:
+            if old is None:
+                del os.environ["OPTITACT_PRECOMPUTE_CACHE"]
+            else:
+                os.environ["OPTITACT_PRECOMPUTE_CACHE"] = old
+
+    cold = [build(False) for _ in range(repeats)]
+    build(True)  # the file is there
+    cached = [build(True) for _ in range(repeats)]
+    startup = []
+    with tempfile.TemporaryDirectory() as tmp:
+        np.save(os.path.join(tmp, "base.npy"), baseline)
+        np.save(os.path.join(tmp, "frame.npy"), frame[None])
+        cmd = [sys.executable, "-m", "optitact.cli", "process", os.path.join(tmp, "frame.npy"), "--baseline",
+               os.path.join(tmp, "base.npy"), "--out", os.path.join(tmp, "r.csv")]
+        if camera != FisheyeCamera(width=camera.width, height=camera.height):
+            raise ValueError("the start-up bench runs the default camera of the frames' size")
+        for _ in range(repeats):
+            t = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            startup.append(time.perf_counter() - t)
+    return float(np.median(cold)), float(np.median(cached)), float(np.median(startup))
+
+
 def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeats: int = 5,
                    n_reference: int = 3, spp: int = 64, seed: int = 0,
                    variant: str | None = None) -> dict:
@@ -69,7 +114,13 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
         floor the fast path is), ``max_G_rel_diff`` and ``max_u_diff_mm``
         (fast vs reference over the reference's frames, elements in
         contact), ``flags_identical``, ``elements_in_contact``, ``lit_pixels``
-        (median per frame), ``precompute_s``; and side by side: ``kernel``
+        (median per frame), ``precompute_s`` (the pipeline's construction in
+        this run), ``precompute_cold_s`` and ``precompute_cached_s`` (the
+        construction without the precompute cache, and from the cache on
+        disk, nothing in memory), ``startup_to_first_frame_s`` (wall time of
+        a fresh ``python -m optitact.cli process`` on one frame with a
+        baseline frame, interpreter start to table written, median of
+        three); and side by side: ``kernel``
         (what ``fast`` ran: ``"numba"``, else ``"numpy"``), ``numpy_fps`` and
         ``floor_over_numpy`` (the NumPy fallback, frame by frame),
         ``kernels_identical`` (its readings equal the fast path's bit for
@@ -148,6 +199,7 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
         numpy_fps = _median_rate(n_frames, t_numpy)
         b1_fps, bn_fps = _median_rate(len(long), t_b1), _median_rate(len(long), t_bn)
         rn = numpy_pipe.process(sub)
+        cold, cached, startup = _start_up(sensor, camera, baseline, frames[0], repeats=min(repeats, 3))
         result[f"{width}x{height}"] = {
             "kernel": fast.kernel,
             "fast_fps": round(fast_fps, 1),
@@ -170,5 +222,8 @@ def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeat
             "elements_in_contact": int(rf.contact[0].sum()),
             "lit_pixels": int(np.median(lit)),
             "precompute_s": round(precompute, 3),
+            "precompute_cold_s": round(cold, 3),
+            "precompute_cached_s": round(cached, 4),
+            "startup_to_first_frame_s": round(startup, 3),
         }
     return result
