@@ -9,6 +9,7 @@ Everything else is an extra::
     taxels   scikit-learn, dtaidistance (the taxel-sensor studies)
     plot     matplotlib (every PNG figure)
     fast     numba (the compiled per-frame kernel; NumPy otherwise, same readings)
+    columnar pyarrow, pandas (Parquet tables for long recordings)
     all      everything above
 """
 
@@ -32,6 +33,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "dtaidistance": ("taxels", "dtaidistance"),
     "matplotlib": ("plot", "matplotlib"),
     "numba": ("fast", "numba"),
+    "pyarrow": ("columnar", "pyarrow"),
 }
 
 

@@ -373,10 +373,9 @@ def _check_pixels(pixels, background, camera: Camera, crop):
 
 def _loaded_region_pixels(sensor: DomeSensor, camera: Camera, forces: np.ndarray):
     """Flat pixels (and their element) the pipeline reads for the elements with ``Fz > 0``."""
-    from optitact.regions import region_weights, split_regions
+    from optitact.regions import fold_regions
 
-    weights = region_weights(split_regions(sensor, camera), camera.shape)
-    return weights.region_pixels(forces[:, 2] > 0)
+    return fold_regions(sensor, camera).region_pixels(forces[:, 2] > 0)
 
 
 def spot_pixels(sensor: DomeSensor, camera: Camera, forces, *,

@@ -19,7 +19,7 @@ import pytest
 
 #: What the core must do without; each is an extra (optitact._optional.EXTRAS) or not used at all.
 OPTIONAL = ("mitsuba", "drjit", "matplotlib", "zarr", "dask", "distributed", "sklearn", "dtaidistance",
-            "skimage", "numba")
+            "skimage", "numba", "pyarrow", "pandas")
 
 BLOCKER = textwrap.dedent(f"""
     import importlib.abc, sys

@@ -184,6 +184,7 @@ def test_bench_pipeline_json(capsys):
     for key in ("fast_fps", "batch_fps", "reference_fps", "floor_fps", "speedup"):
         assert row[key] > 0
     assert row["max_G_rel_diff"] < 1e-9 and row["max_u_diff_mm"] < 1e-9
+    assert row["precompute_cached_s"] > 0 and row["startup_to_first_frame_s"] > 0
     assert row["flags_identical"] and row["elements_in_contact"] > 0
 
 

@@ -38,8 +38,9 @@ def add_parsers(sub) -> None:
     proc.add_argument("frames", nargs="*", type=Path, metavar="FRAMES",
                       help="image files, folders, .npy stacks or video files (or --camera)")
     proc.add_argument("--out", type=Path, required=True, metavar="READINGS.csv",
-                      help="the CSV file to write (its folder must exist; with --calibration also "
-                           "READINGS.per_frame.csv)")
+                      help="the table to write: READINGS.csv, or READINGS.parquet (columnar, the columnar "
+                           "extra) for long recordings (its folder must exist; with --calibration also "
+                           "READINGS.per_frame.csv/.parquet)")
     proc.add_argument("--baseline", type=Path, default=None, metavar="FRAME",
                       help="no-load frame (image or .npy; a .npy stack is averaged)")
     proc.add_argument("--baseline-frames", type=int_at_least(0, "an integer >= 0"), default=1,
