@@ -513,7 +513,7 @@ def _check_readings(readings: Readings) -> None:
         raise InputError(f"readings.G must be >= 0, got {np.min(readings.G)}")
 
 
-def fit(calibration_set, *, model: str = "coupled", partial: bool = False) -> Calibration:
+def fit(calibration_set, *, model: str = "coupled", partial: bool = False, joint: bool = False) -> Calibration:
     """Fit a calibration to a :class:`~optitact.calib.CalibrationSet` (or its path).
 
     Parameters
@@ -525,6 +525,8 @@ def fit(calibration_set, *, model: str = "coupled", partial: bool = False) -> Ca
         Fit the finished frames of a set that is not complete (a run that was
         killed or is still going). Without it such a set is refused: a fit on
         part of a design covers part of its force range.
+    joint : bool
+        Also fit the cross-talk between elements (see :meth:`Calibration.fit`).
 
     Raises
     ------
@@ -548,8 +550,9 @@ def fit(calibration_set, *, model: str = "coupled", partial: bool = False) -> Ca
                            pipeline_options=cs.attrs.get("pipeline", {}), model=model,
                            provenance={"set": str(cs.path), "frames": n_done, "frames_in_set": n,
                                        "seed": cs.attrs["seed"], "spp": cs.attrs["spp"],
-                                       "design": cs.attrs["design"]},
-                           intensity=IntensityScale(bits=cs.ccd.bits))
+                                       "design": cs.attrs["design"],
+                                       "render_mode": cs.attrs.get("render_mode", "full")},
+                           intensity=IntensityScale(bits=cs.ccd.bits), joint=joint)
 
 
 def _grey_for_force(cal: Calibration, fz: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -77,3 +77,9 @@ def test_design_names_its_pattern_only_when_not_the_classic_one():
         pattern_forces("diagonal", 3, SENSOR, DESIGN, 0)
     with pytest.raises(ValueError, match="n_elements"):
         design_forces(3, 8, Design(pattern="uniform"), 0)
+
+
+def test_the_command_line_offers_every_pattern():
+    from optitact.cli._args import pattern_choices
+
+    assert pattern_choices() == PATTERNS

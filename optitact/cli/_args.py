@@ -147,6 +147,11 @@ def plot_parent(help: str) -> argparse.ArgumentParser:
     return p
 
 
+def pattern_choices() -> tuple[str, ...]:
+    """Load patterns of a calibration design (:data:`optitact.calib.patterns.PATTERNS`; not imported here)."""
+    return ("independent", "uniform", "single", "clustered", "checkerboard", "shear", "blend")
+
+
 def render_mode_choices() -> tuple[str, ...]:
     """How calibration frames can be rendered."""
     return ("two_stage", "pixels", "full")

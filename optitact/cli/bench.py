@@ -9,7 +9,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ._args import image_size_parent, plot_parent, positive_int, seed_parent, size, variant_parent
+from ._args import image_size_parent, pattern_choices, plot_parent, positive_int, seed_parent, size, \
+    variant_parent
 
 #: argparse %-formats help strings (``%%`` is a literal ``%``) but prints descriptions as they are:
 #: a description must write ``%``, a help string ``%%``.
@@ -97,6 +98,9 @@ def add_parsers(sub) -> None:
                       help="how the held-out frames are rendered (default pixels: path-traced)")
     bacc.add_argument("--calibration-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this calibration set instead of generating one")
+    bacc.add_argument("--design-pattern", choices=pattern_choices(), default="blend",
+                      help="load pattern of the calibration set (default blend: every family in turn, so "
+                           "that the joint model sees the cross-talk between elements)")
     bacc.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
                       help="load-pattern families of the held-out sets, each its own set: independent, "
                            "uniform, single, clustered, checkerboard, shear, or all (default: all)")
@@ -170,7 +174,7 @@ def _accuracy(args) -> dict:
                           test_spp=args.test_spp, size=size(args.size),
                           calibration_set=args.calibration_set, test_set=args.test_set, seed=args.seed,
                           variant=args.variant, plot=args.plot, render_mode=args.render_mode,
-                          test_render_mode=args.test_render_mode)
+                          test_render_mode=args.test_render_mode, design_pattern=args.design_pattern)
 
 
 def _stability(args) -> dict:

@@ -9,8 +9,8 @@ import numpy as np
 
 from optitact.errors import InputError
 
-from ._args import image_size_parent, int_at_least, plot_parent, positive_int, render_mode_choices, \
-    seed_parent, spp_parent, variant_parent
+from ._args import image_size_parent, int_at_least, pattern_choices, plot_parent, positive_int, \
+    render_mode_choices, seed_parent, spp_parent, variant_parent
 
 __all__ = ["add_parsers"]
 
@@ -45,9 +45,12 @@ def add_parsers(sub) -> None:
     gen.add_argument("--keep-frames", action="store_true", help="also store the frames")
     gen.add_argument("--setup", type=Path, default=None, metavar="SETUP.json",
                      help="the sensor and camera of a setup file (e.g. from optitact register): a set "
-                          "for your registered sensor; a camera other than the on-axis equidistant "
-                          "fisheye is path-traced (--render-mode pixels by default); "
-                          "--width/--height do not apply")
+                          "for your registered sensor (any camera model renders two-stage, with the "
+                          "shipped emission table and its element gains); --width/--height do not apply")
+    gen.add_argument("--pattern", choices=pattern_choices(), default="independent",
+                     help="how loads spread over the elements (default independent: each its own random "
+                          "load; blend: every family in turn, which a joint fit (calibrate fit --joint) "
+                          "needs to see the cross-talk between elements)")
     gen.add_argument("--render-mode", choices=render_mode_choices(), default=None,
                      help="two_stage (default; pixels for a --setup camera two_stage cannot take): "
                           "guided light from a table (shipped for the default "
@@ -87,6 +90,9 @@ def add_parsers(sub) -> None:
                       help="curve model (default coupled; a refinement keeps the start's)")
     fitp.add_argument("--out", type=Path, required=True, metavar="CAL.json",
                       help="the calibration file to write")
+    fitp.add_argument("--joint", action="store_true",
+                      help="also fit the cross-talk between elements (the joint inversion: every element's "
+                           "force solved with its neighbours'); the set should be a --pattern blend one")
     fitp.add_argument("--partial", action="store_true",
                       help="fit the finished frames of an incomplete set (a killed or running generate); "
                            "without it an incomplete set is refused with how many frames are done")
@@ -141,14 +147,12 @@ def run_generate(args) -> int:
 
     from .process import read_setup
 
-    design = Design(fz_max=args.fz_max, shear_max=args.shear_max, mu_max=args.mu_max)
+    design = Design(fz_max=args.fz_max, shear_max=args.shear_max, mu_max=args.mu_max, pattern=args.pattern)
     if args.setup is not None:
         sensor, camera = read_setup(args.setup)
     else:
         sensor, camera = None, FisheyeCamera(width=args.width, height=args.height)
-    mode = args.render_mode
-    if mode is None:  # the two-stage transport takes the on-axis equidistant fisheye only
-        mode = "two_stage" if type(camera) is FisheyeCamera else "pixels"
+    mode = "two_stage" if args.render_mode is None else args.render_mode
     cs = generate(args.out, frames=args.frames, sensor=sensor, camera=camera,
                   spp=args.spp, seed=args.seed, design=design, keep_frames=args.keep_frames,
                   variant=args.variant, render_mode=mode, scheduler=args.scheduler,
@@ -170,7 +174,9 @@ def run_fit(args) -> int:
     for name in ("setup", "start", "baseline"):
         if getattr(args, name) is not None:
             raise InputError(f"--{name} is for fitting presses (--frames and --forces), not a set")
-    cal = fit(args.set, model=args.model or "coupled", partial=args.partial)
+    if args.joint and args.set is None:
+        raise InputError("--joint fits a calibration set (it needs every element's force in every frame)")
+    cal = fit(args.set, model=args.model or "coupled", partial=args.partial, joint=args.joint)
     cal.save(args.out)
     r = cal.residuals
     prov = cal.provenance

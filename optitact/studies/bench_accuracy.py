@@ -21,7 +21,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                    calibration_set=None, test_set=None, seed: int = 0,
                    variant: str | None = None, plot=None, contact_min_n: float = 0.01,
                    render_mode: str = "two_stage", test_render_mode: str = "pixels",
-                   families=("independent",)) -> dict:
+                   families=("independent",), design_pattern: str = "independent") -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -57,6 +57,9 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         each its own set of ``test_frames`` frames with its own seed (``seed +
         1000`` for ``independent``, ``seed + 1000 + 100 k`` for the k-th
         family of ``FAMILIES``); default only ``independent``.
+    design_pattern : str
+        Load pattern of the calibration set (:data:`optitact.calib.patterns.PATTERNS`);
+        ``"blend"`` shows the fit every family, which the joint model needs.
 
     Returns
     -------
@@ -98,7 +101,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         raise InputError(f"families must be some of {FAMILIES}, got {families!r}")
     if test_set is not None and len(families) > 1:
         raise InputError("--test-set is one held-out set: give one family with it")
-    cs = get(calibration_set, frames, seed, "calibration", spp, render_mode)
+    cs = get(calibration_set, frames, seed, "calibration" if design_pattern == "independent"
+             else f"calibration-{design_pattern}", spp, render_mode, Design(pattern=design_pattern))
     sets = {}
     for fam in families:
         k = FAMILIES.index(fam)
@@ -122,6 +126,10 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                  "ccd": ts.attrs["ccd"], "models": {}}
     estimates = {}
     cals = {model: fit(cs, model=model) for model in MODELS}
+    try:  # the coupled curves with the cross-talk between elements, solved jointly per frame
+        cals["joint"] = fit(cs, model="coupled", joint=True)
+    except InputError as exc:
+        out["joint_refused"] = str(exc)
     ring = cals[MODELS[0]].sensor.element_ring
     out["families"] = {}
     for fam, fset in sets.items():
@@ -137,9 +145,12 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     out["models"] = out["families"][families[0]]["models"]
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
                                             for fam in families), key=lambda kv: kv[1])
-                                   for ax in ("fx", "fy", "fz")} for model in MODELS}
+                                   for ax in ("fx", "fy", "fz")} for model in cals}
     if plot is not None:
-        plot_errors(truth, estimates, plot)
+        if len(families) > 1:
+            _plot_families(out, plot)
+        else:
+            plot_errors(truth, estimates, plot)
         out["plot"] = str(plot)
     return out
 
@@ -166,3 +177,37 @@ def _scores(est, truth, clamped, readings, fs, ring, contact_min_n) -> dict:
     out["contact_flag_error_rate"] = round(float(np.mean(readings.contact != should)), 5)
     out["clamped_rate"] = round(float(np.mean(clamped)), 5)
     return out
+
+
+#: Targets of the accuracy bench (% of full scale): Fz of 1 N, Fx and Fy of 0.5 N.
+TARGET_PCT_FS = {"fx": 1.0, "fy": 1.0, "fz": 0.5}
+
+
+def _plot_families(out: dict, path):
+    """RMSE (% FS) per family, one panel per axis, one bar per model, with the targets."""
+    from optitact._optional import require
+    from optitact.io import atomic_write_png_figure
+
+    require("matplotlib", purpose="the accuracy plot")
+    from matplotlib.figure import Figure
+
+    fams = list(out["families"])
+    models = list(out["families"][fams[0]]["models"])
+    fig = Figure(figsize=(15, 4.8))
+    axes = fig.subplots(1, 3)
+    width = 0.8 / len(models)
+    x = np.arange(len(fams))
+    for ax, axis in zip(axes, ("fx", "fy", "fz"), strict=True):
+        for i, model in enumerate(models):
+            vals = [out["families"][f]["models"][model][f"{axis}_rmse_pct_fs"] for f in fams]
+            ax.bar(x + (i - (len(models) - 1) / 2) * width, vals, width, label=model)
+        ax.axhline(TARGET_PCT_FS[axis], color="k", ls=":", lw=1, label=f"target {TARGET_PCT_FS[axis]:g} % FS")
+        ax.set_xticks(x)
+        ax.set_xticklabels(fams, rotation=30, ha="right")
+        ax.set_ylabel(f"{axis.upper()} RMSE (% of full scale)")
+        ax.set_title(f"{axis.upper()}: held-out error per load family")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"calibration set: {out['calibration_set']['path'].rsplit('/', 1)[-1]}; held-out "
+                 f"{out['test_set']['render_mode']} at {out['test_spp']} spp", fontsize=10)
+    fig.tight_layout()
+    return atomic_write_png_figure(fig, path, dpi=100)
