@@ -89,9 +89,11 @@ def pattern_forces(pattern: str, n_frames: int, sensor: DomeSensor, design, seed
     n_frames = integer(n_frames, "frames", minimum=1)
     n_el = sensor.n_elements
     if pattern == "independent":
+        from dataclasses import replace
+
         from .sets import design_forces
 
-        return design_forces(n_frames, n_el, design, seed)
+        return design_forces(n_frames, n_el, replace(design, pattern="independent"), seed)
     if pattern == "blend":
         parts = np.array_split(np.arange(n_frames), len(FAMILIES))
         out = np.zeros((n_frames, n_el, 3))

@@ -62,6 +62,8 @@ def test_blend_holds_every_family_and_design_dispatches():
     blend = pattern_forces("blend", len(FAMILIES) * 4, SENSOR, DESIGN, 3)
     counts = (blend[..., 2] > 0).sum(axis=1)
     assert 1 in counts and 41 in counts
+    np.testing.assert_array_equal(design_forces(12, 41, Design(pattern="blend"), 2),
+                                  pattern_forces("blend", 12, SENSOR, DESIGN, 2))
     np.testing.assert_array_equal(design_forces(8, 41, Design(pattern="clustered"), 2),
                                   pattern_forces("clustered", 8, SENSOR, DESIGN, 2))
     np.testing.assert_array_equal(design_forces(8, 41, DESIGN, 2), pattern_forces("independent", 8, SENSOR,
