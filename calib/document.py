@@ -137,7 +137,8 @@ def from_document(cls, d):
     cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, G_TERMS)),
               arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
               arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
-              residuals, dict(d.get("provenance", {})), intensity, _crosstalk(d.get("crosstalk"), sensor))
+              residuals, dict(d.get("provenance", {})), intensity, _crosstalk(d.get("crosstalk"), sensor),
+              arr("u0", (n, 2, 2)) if "u0" in el else None)
     if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
         raise InputError("calibration scales must be > 0")
     if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):

@@ -38,7 +38,7 @@ from optitact.sensor import DomeSensor
 
 from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
 from .crosstalk import CrossTalk, fit_crosstalk
-from .curves import G_TERMS, MODELS, fit_element, g_design
+from .curves import G_TERMS, MODELS, fit_element, g_design, zero_shear_centroid
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
 from .document import PIPELINE_KEYS as PIPELINE_KEYS
 from .document import SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, from_document, read_document
@@ -118,6 +118,12 @@ class Calibration:
     crosstalk : CrossTalk or None
         The coupling between elements of the joint inversion
         (:mod:`optitact.calib.crosstalk`); None: every element on its own.
+    u0 : (E, 2, 2) ndarray or None
+        Coupled model: the grey-value centroid at zero shear, ``u0[e, 0] +
+        u0[e, 1] / sqrt(Fz)`` (mm, see :func:`~optitact.calib.curves.zero_shear_centroid`):
+        the rim light makes the cones nearer the rim brighter, so an unsheared
+        element's centroid sits off its centre; the shear curve reads ``u -
+        u0(Fz)``. None: zero (calibrations made before it existed).
     """
 
     model: str
@@ -135,9 +141,12 @@ class Calibration:
     provenance: dict = field(default_factory=dict)
     intensity: IntensityScale = field(default_factory=IntensityScale)
     crosstalk: CrossTalk | None = None
+    u0: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_type(self.intensity, IntensityScale, "intensity")
+        if self.u0 is not None and np.shape(self.u0) != (len(self.g), 2, 2):
+            raise ShapeError(f"u0 must have shape {(len(self.g), 2, 2)}, got {np.shape(self.u0)}")
         if self.crosstalk is not None:
             check_type(self.crosstalk, CrossTalk, "crosstalk")
 
@@ -234,6 +243,7 @@ class Calibration:
             return replace(cal, crosstalk=ct, provenance={**cal.provenance, "crosstalk_fit": info})
         g_c = np.zeros((n_el, G_TERMS))
         gu = np.zeros((n_el, 2))
+        u0 = np.zeros((n_el, 2, 2))
         f_c = np.zeros((n_el, 2))
         g_scale, u_scale = np.ones(n_el), np.ones(n_el)
         g_max, u_max = np.zeros(n_el), np.zeros(n_el)
@@ -243,12 +253,13 @@ class Calibration:
             ok = readings.contact[:, e] & ~readings.saturated[:, e]
             c = fit_element(readings.G[ok, e], readings.u[ok, e], f[ok, e], model=model,
                             lever_arm=sensor.lever_arm, e=e)
-            g_c[e], gu[e], f_c[e] = c.g, c.gu, c.f
+            g_c[e], gu[e], f_c[e], u0[e] = c.g, c.gu, c.f, c.u0
             g_scale[e], u_scale[e], g_max[e], u_max[e] = c.g_scale, c.u_scale, c.g_max, c.u_max
             res["fx"][e], res["fy"][e], res["fz"][e], res["n"][e] = c.rms_fx, c.rms_fy, c.rms_fz, c.n
         return cls(model, sensor, camera, _resolved(sensor, camera, pipeline_options or {}),
                    g_c, g_scale, f_c,
-                   u_scale, g_max, u_max, gu, res, dict(provenance or {}), intensity)
+                   u_scale, g_max, u_max, gu, res, dict(provenance or {}), intensity,
+                   u0=u0 if np.any(u0) else None)
 
     # ------------------------------------------------------------------ applying
     def pipeline(self, *, baseline=None, method: str = "fast", bits: int | None = None,
@@ -408,6 +419,8 @@ class Calibration:
             shear = self.f[:, 0:1] * t + self.f[:, 1:2] * t**3
         else:
             fzp = np.maximum(fz, 0.0)
+            if self.u0 is not None:
+                u = u - zero_shear_centroid(self.u0, fzp)
             shear = u * (fzp / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fzp)))[..., None]
         return np.concatenate([shear, fz[..., None]], axis=-1), clamped
 
@@ -436,6 +449,7 @@ class Calibration:
                 "g": self.g.tolist(), "g_scale": self.g_scale.tolist(), "f": self.f.tolist(),
                 "u_scale": self.u_scale.tolist(), "g_max": self.g_max.tolist(),
                 "u_max": self.u_max.tolist(), "gu": self.gu.tolist(),
+                **({} if self.u0 is None else {"u0": np.asarray(self.u0).tolist()}),
             },
             "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
             "provenance": self.provenance,
