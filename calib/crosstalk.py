@@ -105,9 +105,9 @@ class CrossTalk:
             raise InputError(f"cross-talk near_mm must be a positive length, got {near}")
         return cls(k, near)
 
-    def solve(self, sensor: DomeSensor, G: np.ndarray, contact: np.ndarray, per_element, *,
-              iterations: int = ITERATIONS):
-        """Joint inversion: the forces of all elements together.
+    def solve(self, sensor: DomeSensor, G: np.ndarray, contact: np.ndarray, normal, *,
+              iterations: int = ITERATIONS) -> np.ndarray:
+        """Joint inversion: the isolated grey values ``G_iso = G exp(W Fz)`` of all elements together.
 
         Parameters
         ----------
@@ -116,28 +116,26 @@ class CrossTalk:
             Measured integrated grey values.
         contact : bool array of the shape of ``G``
             Elements in contact (the others carry no load).
-        per_element : callable
-            ``per_element(G) -> (forces, extra)``: the per-element curves,
-            forces (..., E, 3) element-local (``extra``: anything to return
-            with the last step, e.g. clamp flags).
+        normal : callable
+            ``normal(G) -> Fz`` (the shape of ``G``): the per-element normal
+            curves (the shear follows from the result once).
 
         Returns
         -------
-        (forces, extra, G_iso) of the last step, ``G_iso = G exp(W Fz)``.
+        ndarray
+            ``G_iso``, at which the per-element curves give every force.
         """
         w = self.matrix(sensor)
-        forces, extra = per_element(G)
+        fz = np.where(contact, normal(G), 0.0)
         g_iso = G
-        fz = np.where(contact, forces[..., 2], 0.0)
         for _ in range(iterations):
             g_iso = G * np.exp(fz @ w.T)
-            forces, extra = per_element(g_iso)
-            new = np.where(contact, forces[..., 2], 0.0)
+            new = np.where(contact, normal(g_iso), 0.0)
             step = float(np.max(np.abs(new - fz), initial=0.0))
             fz = new
             if step <= TOLERANCE_N:
                 break
-        return forces, extra, g_iso
+        return G * np.exp(fz @ w.T)
 
 
 def _geodesic(sensor: DomeSensor) -> np.ndarray:

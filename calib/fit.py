@@ -391,13 +391,26 @@ class Calibration:
             raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
                              f"{len(self.g)}")
         _check_readings(readings)
-        if self.crosstalk is None:
-            out, clamped = self._per_element(readings.G, readings.u)
-        else:
-            out, clamped, _ = self.crosstalk.solve(self.sensor, readings.G, readings.contact,
-                                                   lambda G: self._per_element(G, readings.u))
+        G = readings.G
+        if self.crosstalk is not None:  # every element's G as it would read alone, then the curves
+            G = self.crosstalk.solve(self.sensor, G, readings.contact, self._normal_curve(readings.u))
+        out, clamped = self._per_element(G, readings.u)
         out[~readings.contact] = 0.0
         return out, clamped & readings.contact
+
+    def _normal_curve(self, u):
+        """``G -> Fz`` of every element on its own at shifts ``u`` (the joint inversion's inner step)."""
+        radius = np.hypot(u[..., 0], u[..., 1])
+        scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
+                          where=radius > self.u_max)
+        q = np.sum(u * scale[..., None] / self.u_scale[:, None] * self.gu, axis=-1)
+
+        def normal(G):
+            s = np.minimum(G, self.g_max) / self.g_scale
+            g = self.g
+            return np.maximum(((g[:, 3] * s + g[:, 2]) * s + g[:, 1] + q) * s + g[:, 0], 0.0)
+
+        return normal
 
     def _per_element(self, G, u) -> tuple[np.ndarray, np.ndarray]:
         """Forces (..., E, 3) and clamp flags of every element on its own (contact not applied)."""
