@@ -413,12 +413,6 @@ def test_pipeline_recovers_spots_with_any_camera(name):
         np.testing.assert_allclose(cam.unproject(truth, SENSOR), SENSOR.dome_point(e, c), rtol=0, atol=1e-9)
 
 
-def test_render_refuses_two_stage_for_other_models():
-    render = pytest.importorskip("optitact.render")
-    with pytest.raises(InputError, match="transport='two_stage' supports only the on-axis equidistant fisheye"):
-        render.render(SENSOR, np.zeros((SENSOR.n_elements, 3)), camera=CAMERAS[0], spp=1, transport="two_stage")
-
-
 def test_top_level_exports():
     assert issubclass(optitact.PinholeCamera, Camera) and issubclass(optitact.FisheyeCamera, Camera)
     assert optitact.read_opencv_calibration is read_opencv_calibration

@@ -51,9 +51,9 @@ RUN = {
 SKIPPED = {
     "pip install -e '.[render,plot]' && optitact demo": "an install, then a 640x480 render at 64 spp",
     "pip install -e '.[test]' && pytest": "an install, then the whole test suite",
-    "optitact calibrate generate --frames 100 --spp 64 --seed 0 --out dome41.zarr":
+    "optitact calibrate generate --frames 200 --pattern blend --seed 0 --out dome41.zarr":
         "regenerates the shipped calibration's set (minutes)",
-    "optitact calibrate fit dome41.zarr --model coupled --out calib/data/dome41.json --plot fit.png":
+    "optitact calibrate fit dome41.zarr --joint --out calib/data/dome41.json --plot fit.png":
         "overwrites the shipped calibration, from the set above",
     "optitact experiment finger --full --plot finger.png": "the full finger study (minutes)",
 }
