@@ -12,6 +12,7 @@ after a denoising filter (NumPy only).
 from __future__ import annotations
 
 import itertools
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -20,7 +21,47 @@ from . import _kernel
 from .readings import Readings
 from .steps import _saturation_level, denoise, filter_radius, readings_from_moments, subtract_baseline
 
-__all__ = ["fast_compiled", "fast_numpy", "filtered_lit", "kernel_args"]
+__all__ = ["MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit", "kernel_args", "run_split",
+           "thread_count"]
+
+#: With ``threads=None`` a stack is split so that each thread gets at least this many frames.
+MIN_FRAMES_PER_THREAD = 8
+
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def thread_count(requested: int | None, cores: int, n_frames: int) -> int:
+    """Threads sharing a stack of ``n_frames``: ``requested``, or (None) every core with enough frames."""
+    if requested is None:
+        requested = min(cores, n_frames // MIN_FRAMES_PER_THREAD)
+    return max(1, min(requested, n_frames))
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """A thread pool of ``n`` workers kept for the process's life (no thread start per call)."""
+    pool = _pools.get(n)
+    if pool is None:
+        with _pools_lock:
+            pool = _pools.setdefault(n, ThreadPoolExecutor(n, thread_name_prefix="optitact-frames"))
+    return pool
+
+
+def run_split(fn, bounds) -> list:
+    """``[fn(a, b) for consecutive (a, b) in bounds]``, the parts run at once on as many threads.
+
+    The calling thread runs the first part itself and the others run on a
+    pool kept between calls; results come in order.
+    """
+    parts = list(itertools.pairwise(int(b) for b in bounds))
+    if len(parts) == 1:
+        return [fn(*parts[0])]
+    futures = [_pool(len(parts) - 1).submit(fn, a, b) for a, b in parts[1:]]
+    try:
+        first = fn(*parts[0])
+    finally:
+        rest = [f.result() for f in futures]
+    return [first, *rest]
 
 
 def kernel_args(pipe, dtype: np.dtype) -> tuple:
@@ -49,15 +90,9 @@ def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     out = (np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)),
            np.zeros((t_n, n_el), bool))
     exact = stack.dtype.kind == "f"
-    n_threads = min(pipe.threads, t_n)
-    if n_threads <= 1:
-        _kernel.lit_sums(flat, 0, t_n, args, sat, exact, out)
-    else:
-        bounds = np.linspace(0, t_n, n_threads + 1).astype(int)
-        with ThreadPoolExecutor(n_threads) as pool:
-            for f in [pool.submit(_kernel.lit_sums, flat, int(a), int(b), args, sat, exact, out)
-                      for a, b in itertools.pairwise(bounds)]:
-                f.result()
+    n_threads = pipe.threads_for(t_n)
+    run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, sat, exact, out),
+              np.linspace(0, t_n, n_threads + 1).astype(int))
     g_sum, w_sum, mx, my, saturated = out
     m = np.stack([mx, my], axis=-1)
     if single:
