@@ -19,7 +19,7 @@ import numpy as np
 
 from . import _kernel
 from .readings import Readings
-from .steps import _saturation_level, denoise, filter_radius, readings_from_moments, subtract_baseline
+from .steps import G_MIN, _saturation_level, denoise, filter_radius, readings_from_moments, subtract_baseline
 
 __all__ = ["MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit", "kernel_args", "run_split",
            "thread_count"]
@@ -75,7 +75,7 @@ def kernel_args(pipe, dtype: np.dtype) -> tuple:
         index = np.int32 if small else np.intp  # half the bytes the kernel streams
         args = (fold.pixel.astype(index), fold.label.astype(index), np.ascontiguousarray(level),
                 pipe.entry_baseline, np.ascontiguousarray(pipe.entry_threshold, np.float64), area, wx, wy,
-                np.ascontiguousarray(watch, np.intp))
+                np.ascontiguousarray(watch, np.intp), np.ascontiguousarray(pipe.floor, np.float64), G_MIN)
         pipe._levels[key] = (args, sat)
     return pipe._levels[key]
 
@@ -85,19 +85,25 @@ def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     The same sums in the same order as :func:`fast_numpy`: bit-identical readings.
     """
     t_n, n_el = stack.shape[0], pipe.grids.n_elements
-    flat = np.ascontiguousarray(stack.reshape(t_n, -1))
+    flat = stack.reshape(t_n, -1)
+    if not flat.flags.c_contiguous:
+        flat = np.ascontiguousarray(flat)
     args, sat = kernel_args(pipe, stack.dtype)
-    out = (np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)),
-           np.zeros((t_n, n_el), bool))
+    sums = np.zeros((2, t_n, n_el))
+    flags = np.zeros((2, t_n, n_el), bool)
+    u = np.zeros((t_n, n_el, 2))
+    out = (sums[0], sums[1], u, flags[0], flags[1])
     exact = stack.dtype.kind == "f"
-    n_threads = pipe.threads_for(t_n)
-    run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, sat, exact, out),
-              np.linspace(0, t_n, n_threads + 1).astype(int))
-    g_sum, w_sum, mx, my, saturated = out
-    m = np.stack([mx, my], axis=-1)
+    n_threads = pipe.threads_for(t_n) if t_n > 1 else 1
+    if n_threads == 1:
+        _kernel.lit_sums(flat, 0, t_n, args, sat, exact, out)
+    else:
+        run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, sat, exact, out),
+                  np.linspace(0, t_n, n_threads + 1).astype(int))
     if single:
-        return readings_from_moments(g_sum[0], m[0], saturated[0], pipe.floor, weight=w_sum[0])
-    return readings_from_moments(g_sum, m, saturated, pipe.floor, weight=w_sum)
+        return Readings(sums[0, 0], u[0], flags[1, 0], flags[0, 0])
+    return Readings(sums[0], u, flags[1], flags[0])
+
 
 def fast_numpy(pipe, stack: np.ndarray, single: bool = False) -> Readings:
     """The folded sums over the lit entries of a stack (readings ``(T, E)``, or ``(E,)`` if single).
