@@ -22,7 +22,7 @@ import threading
 
 from ._optional import require
 
-__all__ = ["KERNELS", "available", "lit_sums", "resolve"]
+__all__ = ["KERNELS", "available", "lit_sums", "loaded", "resolve"]
 
 #: Kernel names accepted by :class:`optitact.Pipeline` (``kernel=``).
 KERNELS = ("auto", "numba", "numpy")
@@ -37,6 +37,11 @@ def _numba():
         return importlib.import_module("numba")
     except ImportError:
         return None
+
+
+def loaded() -> bool:
+    """Whether the compiled kernel is loaded in this process already (numba imported, no start-up cost)."""
+    return "lit_sums" in _compiled
 
 
 def available() -> bool:
