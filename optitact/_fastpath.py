@@ -12,15 +12,56 @@ after a denoising filter (NumPy only).
 from __future__ import annotations
 
 import itertools
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from . import _kernel
 from .readings import Readings
-from .steps import _saturation_level, denoise, filter_radius, readings_from_moments, subtract_baseline
+from .steps import G_MIN, _saturation_level, denoise, filter_radius, readings_from_moments, subtract_baseline
 
-__all__ = ["fast_compiled", "fast_numpy", "filtered_lit", "kernel_args"]
+__all__ = ["MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit", "kernel_args", "run_split",
+           "thread_count"]
+
+#: With ``threads=None`` a stack is split so that each thread gets at least this many frames.
+MIN_FRAMES_PER_THREAD = 8
+
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def thread_count(requested: int | None, cores: int, n_frames: int) -> int:
+    """Threads sharing a stack of ``n_frames``: ``requested``, or (None) every core with enough frames."""
+    if requested is None:
+        requested = min(cores, n_frames // MIN_FRAMES_PER_THREAD)
+    return max(1, min(requested, n_frames))
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """A thread pool of ``n`` workers kept for the process's life (no thread start per call)."""
+    pool = _pools.get(n)
+    if pool is None:
+        with _pools_lock:
+            pool = _pools.setdefault(n, ThreadPoolExecutor(n, thread_name_prefix="optitact-frames"))
+    return pool
+
+
+def run_split(fn, bounds) -> list:
+    """``[fn(a, b) for consecutive (a, b) in bounds]``, the parts run at once on as many threads.
+
+    The calling thread runs the first part itself and the others run on a
+    pool kept between calls; results come in order.
+    """
+    parts = list(itertools.pairwise(int(b) for b in bounds))
+    if len(parts) == 1:
+        return [fn(*parts[0])]
+    futures = [_pool(len(parts) - 1).submit(fn, a, b) for a, b in parts[1:]]
+    try:
+        first = fn(*parts[0])
+    finally:
+        rest = [f.result() for f in futures]
+    return [first, *rest]
 
 
 def kernel_args(pipe, dtype: np.dtype) -> tuple:
@@ -34,7 +75,7 @@ def kernel_args(pipe, dtype: np.dtype) -> tuple:
         index = np.int32 if small else np.intp  # half the bytes the kernel streams
         args = (fold.pixel.astype(index), fold.label.astype(index), np.ascontiguousarray(level),
                 pipe.entry_baseline, np.ascontiguousarray(pipe.entry_threshold, np.float64), area, wx, wy,
-                np.ascontiguousarray(watch, np.intp))
+                np.ascontiguousarray(watch, np.intp), np.ascontiguousarray(pipe.floor, np.float64), G_MIN)
         pipe._levels[key] = (args, sat)
     return pipe._levels[key]
 
@@ -44,25 +85,25 @@ def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     The same sums in the same order as :func:`fast_numpy`: bit-identical readings.
     """
     t_n, n_el = stack.shape[0], pipe.grids.n_elements
-    flat = np.ascontiguousarray(stack.reshape(t_n, -1))
+    flat = stack.reshape(t_n, -1)
+    if not flat.flags.c_contiguous:
+        flat = np.ascontiguousarray(flat)
     args, sat = kernel_args(pipe, stack.dtype)
-    out = (np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)), np.zeros((t_n, n_el)),
-           np.zeros((t_n, n_el), bool))
+    sums = np.zeros((2, t_n, n_el))
+    flags = np.zeros((2, t_n, n_el), bool)
+    u = np.zeros((t_n, n_el, 2))
+    out = (sums[0], sums[1], u, flags[0], flags[1])
     exact = stack.dtype.kind == "f"
-    n_threads = min(pipe.threads, t_n)
-    if n_threads <= 1:
+    n_threads = pipe.threads_for(t_n) if t_n > 1 else 1
+    if n_threads == 1:
         _kernel.lit_sums(flat, 0, t_n, args, sat, exact, out)
     else:
-        bounds = np.linspace(0, t_n, n_threads + 1).astype(int)
-        with ThreadPoolExecutor(n_threads) as pool:
-            for f in [pool.submit(_kernel.lit_sums, flat, int(a), int(b), args, sat, exact, out)
-                      for a, b in itertools.pairwise(bounds)]:
-                f.result()
-    g_sum, w_sum, mx, my, saturated = out
-    m = np.stack([mx, my], axis=-1)
+        run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, sat, exact, out),
+                  np.linspace(0, t_n, n_threads + 1).astype(int))
     if single:
-        return readings_from_moments(g_sum[0], m[0], saturated[0], pipe.floor, weight=w_sum[0])
-    return readings_from_moments(g_sum, m, saturated, pipe.floor, weight=w_sum)
+        return Readings(sums[0, 0], u[0], flags[1, 0], flags[0, 0])
+    return Readings(sums[0], u, flags[1], flags[0])
+
 
 def fast_numpy(pipe, stack: np.ndarray, single: bool = False) -> Readings:
     """The folded sums over the lit entries of a stack (readings ``(T, E)``, or ``(E,)`` if single).

@@ -22,7 +22,7 @@ import threading
 
 from ._optional import require
 
-__all__ = ["KERNELS", "available", "lit_sums", "resolve"]
+__all__ = ["KERNELS", "available", "lit_sums", "loaded", "resolve"]
 
 #: Kernel names accepted by :class:`optitact.Pipeline` (``kernel=``).
 KERNELS = ("auto", "numba", "numpy")
@@ -37,6 +37,11 @@ def _numba():
         return importlib.import_module("numba")
     except ImportError:
         return None
+
+
+def loaded() -> bool:
+    """Whether the compiled kernel is loaded in this process already (numba imported, no start-up cost)."""
+    return "lit_sums" in _compiled
 
 
 def available() -> bool:
@@ -72,16 +77,21 @@ def resolve(kernel: str) -> str:
 
 
 def _lit_sums(flat, t0, t1, pixel, label, level, base, thr, area, wx, wy, watch, sat, exact,
-              g_out, w_out, mx_out, my_out, sat_out):  # pragma: no cover - compiled by numba
-    """Frames ``t0 .. t1 - 1`` of ``flat`` (T, H*W): per-element sums into rows of the outputs.
+              floor, g_min, g_out, w_out, u_out, sat_out, contact_out):  # pragma: no cover - compiled by numba
+    """Frames ``t0 .. t1 - 1`` of ``flat`` (T, H*W): per-element readings into rows of the outputs.
 
     ``exact``: float frames, where ``frame > level`` only selects candidates
     and ``frame - base > thr`` (float64) decides, as the reference tests it.
+    Each frame's sums then become readings as
+    :func:`optitact.steps.readings_from_moments` makes them (the same float64
+    operations): contact where ``G > floor`` and ``G > g_min``, else G = 0;
+    ``u = M / weight`` where in contact with a positive weight, else 0.
     """
     n = pixel.shape[0]
     for t in range(t0, t1):
         frame = flat[t]
-        g, w, mx, my, hot = g_out[t], w_out[t], mx_out[t], my_out[t], sat_out[t]
+        g, w, hot, u, contact = g_out[t], w_out[t], sat_out[t], u_out[t], contact_out[t]
+        mx, my = u[:, 0], u[:, 1]
         for i in range(n):
             raw = frame[pixel[i]]
             if raw > level[i]:  # lit (for float frames: a candidate)
@@ -100,6 +110,17 @@ def _lit_sums(flat, t0, t1, pixel, label, level, base, thr, area, wx, wy, watch,
         for j in range(watch.shape[0]):
             if float(frame[pixel[watch[j]]]) >= sat:
                 hot[label[watch[j]]] = True
+        for e in range(g.shape[0]):
+            in_contact = g[e] > floor[e] and g[e] > g_min
+            contact[e] = in_contact
+            if not in_contact:
+                g[e] = 0.0
+            if in_contact and w[e] > 0.0:
+                mx[e] = mx[e] / w[e]
+                my[e] = my[e] / w[e]
+            else:
+                mx[e] = 0.0
+                my[e] = 0.0
 
 
 def _compile():
@@ -127,7 +148,7 @@ def _compile():
 
 
 def lit_sums(flat, t0, t1, args, sat, exact, out) -> None:
-    """Run the compiled kernel on frames ``t0 .. t1 - 1`` (releases the GIL).
+    """Readings of frames ``t0 .. t1 - 1`` by the compiled kernel (releases the GIL).
 
     Parameters
     ----------
@@ -138,12 +159,16 @@ def lit_sums(flat, t0, t1, args, sat, exact, out) -> None:
     args : tuple
         ``(pixel, label, level, base, thr, area, wx, wy, watch)``: the region
         entries, their lit level (frame dtype), baseline and threshold, the
-        folded weights, and the entries to watch for saturation.
+        folded weights, and the entries to watch for saturation; then
+        ``floor`` ((E,) noise floor of G) and ``g_min`` (G_MIN).
     sat : float
         Saturation level (``inf``: none).
     exact : bool
         Float frames: the reference's float64 test decides among the candidates.
-    out : tuple of (T, E) ndarrays
-        ``(G, weight, Mx, My, saturated)``, zeroed; rows ``t0 .. t1 - 1`` are filled.
+    out : tuple of ndarrays
+        ``(G, weight, u, saturated, contact)``, (T, E) but ``u`` (T, E, 2),
+        zeroed; rows ``t0 .. t1 - 1`` are filled: G, u, saturated and
+        contact are the readings (``weight`` is the centroid's weight sum).
     """
-    _compile()(flat, t0, t1, *args, float(sat), bool(exact), *out)
+    *entries, floor, g_min = args
+    _compile()(flat, t0, t1, *entries, float(sat), bool(exact), floor, float(g_min), *out)

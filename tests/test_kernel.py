@@ -125,6 +125,21 @@ def test_threaded_batch_equals_serial(pipes, kernel):
     assert_identical(serial[[0, 70, -1]], p.process(frames[[0, 70, -1]]))  # in frame order
 
 
+def test_default_threads_split_long_stacks_only(pipes):
+    """threads=None: every core, at least MIN_FRAMES_PER_THREAD frames each; readings as one thread's."""
+    from optitact._fastpath import MIN_FRAMES_PER_THREAD, run_split, thread_count
+
+    assert thread_count(None, 4, 1) == 1 and thread_count(None, 4, 2 * MIN_FRAMES_PER_THREAD - 1) == 1
+    assert thread_count(None, 4, 2 * MIN_FRAMES_PER_THREAD) == 2 and thread_count(None, 4, 1000) == 4
+    assert thread_count(3, 16, 2) == 2 and thread_count(1, 16, 1000) == 1
+    assert run_split(lambda a, b: list(range(a, b)), [0, 2, 5, 9]) == [[0, 1], [2, 3, 4], [5, 6, 7, 8]]
+    with pytest.raises(ZeroDivisionError):  # a failing part's error reaches the caller
+        run_split(lambda a, b: 1 / (b - 5), [0, 2, 5])
+    p = pipes[np.uint8][0].replace(kernel="auto", threads=None)
+    frames, _ = random_frames(np.uint8, n=4 * MIN_FRAMES_PER_THREAD + 3, seed=5)
+    assert_identical(p.process(frames), p.replace(threads=1).process(frames))
+
+
 def test_kernel_and_threads_options(pipes):
     p = pipes[np.uint8][0]
     assert p.kernel == "numpy" and p.replace(kernel="auto").kernel == ("numba" if _kernel.available()

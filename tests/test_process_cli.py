@@ -176,16 +176,23 @@ def test_process_help(capsys):
 
 
 def test_bench_pipeline_json(capsys):
-    assert main(["bench", "pipeline", "--size", "80x60", "--frames", "2", "--repeats", "1",
-                 "--spp", "2"]) == 0
+    assert main(["bench", "pipeline", "--size", "80x60", "--loads", "1", "41", "--frames", "2",
+                 "--repeats", "1"]) == 0
     out = json.loads(capsys.readouterr().out)
-    row = out["80x60"]
-    assert out["cores"] >= 1
-    for key in ("fast_fps", "batch_fps", "reference_fps", "floor_fps", "speedup"):
-        assert row[key] > 0
-    assert row["max_G_rel_diff"] < 1e-9 and row["max_u_diff_mm"] < 1e-9
-    assert row["precompute_cached_s"] > 0 and row["startup_to_first_frame_s"] > 0
-    assert row["flags_identical"] and row["elements_in_contact"] > 0
+    size = out["80x60"]
+    assert out["cores"] >= 1 and out["kernel"] in ("numba", "numpy")
+    assert set(size["loads"]) == {"1", "41"} and set(out["table"]["80x60"]) == {"1", "41"}
+    for n, row in size["loads"].items():
+        for key in ("fast", "numpy", "floor", "batch_1thread", "batch_threads", "floor_1thread",
+                    "floor_threads", "reference"):
+            assert row[f"{key}_us"] > 0 and row[f"{key}_cpu_us"] >= 0
+        assert row["fast_over_floor"] > 0 and row["threads_speedup"] > 0 and row["speedup"] > 0
+        # exactness: the fast path against the reference, and the NumPy fallback bit for bit
+        assert row["max_G_rel_diff"] < 1e-9 and row["max_u_diff_mm"] < 1e-9
+        assert row["flags_identical"] and row["kernels_identical"]
+        assert row["elements_in_contact"] >= (1 if n == "1" else 20)
+        assert out["table"]["80x60"][n] == row["fast_over_floor"]
+    assert size["precompute_cached_s"] > 0 and size["startup_to_first_frame_s"] > 0
 
 
 def test_bench_pipeline_bad_size(capsys):

@@ -59,21 +59,26 @@ def add_parsers(sub) -> None:
     brender.add_argument("--target", type=float, default=0.5,
                          help="force error (%% FS) for the headline figures (default 0.5)")
     bpipe = bsub.add_parser(
-        "pipeline", parents=[seed_parent(), variant_parent()],
-        help="frames/s of the fast and reference pipelines vs one pass over the frame",
-        description="Render (once, then cached in the user cache folder) a frame with all 41 "
-                    "elements loaded at each size, expose it with several noise seeds, and time "
-                    "the fast pipeline frame by frame and as a batch, the reference pipeline, and "
-                    "one pass over the frame (np.count_nonzero(frame > t)), side by side in each "
-                    "repeat; report medians and the fast-vs-reference differences.")
-    bpipe.add_argument("--size", nargs="+", default=["640x480", "480x480"], metavar="WxH",
-                       help="frame sizes (default 640x480 480x480)")
+        "pipeline", parents=[seed_parent()],
+        help="per-frame cost of the fast and reference pipelines vs one pass over the frame",
+        description="At each size and number of loaded elements, render a frame two-stage (the contact "
+                    "patches over a dark background, milliseconds), expose it with several noise seeds, "
+                    "and time side by side in each repeat: the fast pipeline frame by frame (compiled "
+                    "kernel and NumPy fallback), a long stack on one thread and on every core, one pass "
+                    "over the frame (np.count_nonzero(frame > t)) frame by frame and over the stack, and "
+                    "the reference; report CPU and wall medians per frame, the ratios to one pass, the "
+                    "fast-vs-reference differences, the precompute cold and cached and the start-up "
+                    "to a first frame. One JSON object on stdout.")
+    bpipe.add_argument("--size", nargs="+", default=["320x240", "640x480", "1280x960", "1920x1440"],
+                       metavar="WxH", help="frame sizes (default 320x240 640x480 1280x960 1920x1440)")
+    bpipe.add_argument("--loads", nargs="+", type=int, choices=(1, 5, 41), default=[1, 5, 41],
+                       help="elements loaded (default 1 5 41)")
     bpipe.add_argument("--frames", type=positive_int, default=16,
-                       help="distinct noisy frames per size (default 16)")
+                       help="distinct noisy frames per size and load (default 16)")
     bpipe.add_argument("--repeats", type=positive_int, default=5,
                        help="timing repeats; medians are reported (default 5)")
-    bpipe.add_argument("--spp", type=positive_int, default=64,
-                       help="samples per pixel of the renders (default 64)")
+    bpipe.add_argument("--no-startup", dest="startup", action="store_false",
+                       help="skip the start-up timing (a fresh optitact process per size)")
     bacc = bsub.add_parser(
         "accuracy", parents=[seed_parent("seed of the calibration set; the held-out set uses seed + 1000"),
                              variant_parent(),
@@ -158,8 +163,8 @@ def _render(args) -> dict:
 def _pipeline(args) -> dict:
     from optitact.studies.bench_pipeline import bench_pipeline
 
-    return bench_pipeline([size(s) for s in args.size], n_frames=args.frames, repeats=args.repeats,
-                          spp=args.spp, seed=args.seed, variant=args.variant)
+    return bench_pipeline([size(s) for s in args.size], loads=args.loads, n_frames=args.frames,
+                          repeats=args.repeats, seed=args.seed, startup=args.startup)
 
 
 def _accuracy(args) -> dict:

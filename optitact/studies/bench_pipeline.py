@@ -1,7 +1,12 @@
-"""Benchmark: frames/s of the fast and reference pipelines against one pass over the frame.
+"""Benchmark: per-frame cost of the fast and reference pipelines against one pass over the frame.
 
-Not library code: ``optitact bench pipeline`` runs it. Medians over repeats
-taken in one run, side by side, because the machine is shared and noisy.
+Not library code: ``optitact bench pipeline`` runs it. Every method is timed
+side by side in each repeat of one run (CPU time and wall time, medians over
+repeats), because the machine is shared and noisy; the one-pass floor
+``np.count_nonzero(frame > t)`` is measured on the same frames in the same
+repeats. Frames are two-stage renders (the contact patches as emitters, over
+a dark background) exposed by the CCD model: realistic spot sizes at any
+frame size in milliseconds, no path tracing.
 """
 
 from __future__ import annotations
@@ -15,17 +20,17 @@ from optitact._validate import integer
 from optitact.camera import FisheyeCamera
 from optitact.sensor import DomeSensor
 
-__all__ = ["bench_pipeline"]
+__all__ = ["LOAD_CASES", "bench_pipeline"]
+
+#: Elements loaded -> the load case of :func:`optitact.studies.bench_render.render_cases`.
+LOAD_CASES = {1: "1-heavy", 5: "5-heavy", 41: "41"}
 
 
-def _median_rate(n: int, seconds: list[float]) -> float:
-    return float(n / np.median(seconds))
-
-
-def _clock(into: list, fn, *args) -> None:
-    t = time.perf_counter()
+def _clock(into: dict, name: str, fn, *args) -> None:
+    """Append ``fn(*args)``'s wall and CPU seconds to ``into[name]``."""
+    w, c = time.perf_counter(), time.process_time()
     fn(*args)
-    into.append(time.perf_counter() - t)
+    into.setdefault(name, []).append((time.perf_counter() - w, time.process_time() - c))
 
 
 def _each(pipe, frames) -> None:
@@ -33,11 +38,18 @@ def _each(pipe, frames) -> None:
         pipe.process(f)
 
 
-def _start_up(sensor, camera, baseline, frame, *, repeats: int) -> tuple[float, float, float]:
+def _floor(frames, thr) -> None:
+    for f in frames:
+        np.count_nonzero(f > thr)
+
+
+def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = True) -> tuple:
     """Pipeline construction without and with the precompute cache, and a fresh process on one frame (s).
 
-    Medians over ``repeats``; the in-memory copies are forgotten before
-    each construction, so "cached" is a load from the cache folder.
+    Medians over ``repeats`` (one cold construction above 1 Mpixel: seconds
+    each); the in-memory copies are forgotten before each construction, so
+    "cached" is a load from the cache folder. The start-up is None when not
+    ``startup``.
     """
     import os
     import subprocess
@@ -60,10 +72,12 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int) -> tuple[float, 
             else:
                 os.environ["OPTITACT_PRECOMPUTE_CACHE"] = old
 
-    cold = [build(False) for _ in range(repeats)]
+    cold = [build(False) for _ in range(repeats if camera.width * camera.height <= 2**20 else 1)]
     build(True)  # the file is there
     cached = [build(True) for _ in range(repeats)]
-    startup = []
+    if not startup:
+        return float(np.median(cold)), float(np.median(cached)), None
+    runs = []
     with tempfile.TemporaryDirectory() as tmp:
         np.save(os.path.join(tmp, "base.npy"), baseline)
         np.save(os.path.join(tmp, "frame.npy"), frame[None])
@@ -74,156 +88,175 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int) -> tuple[float, 
         for _ in range(repeats):
             t = time.perf_counter()
             subprocess.run(cmd, check=True, capture_output=True)
-            startup.append(time.perf_counter() - t)
-    return float(np.median(cold)), float(np.median(cached)), float(np.median(startup))
+            runs.append(time.perf_counter() - t)
+    return float(np.median(cold)), float(np.median(cached)), float(np.median(runs))
 
 
-def bench_pipeline(sizes=((640, 480), (480, 480)), *, n_frames: int = 16, repeats: int = 5,
-                   n_reference: int = 3, spp: int = 64, seed: int = 0,
-                   variant: str | None = None) -> dict:
-    """Frames per second of the fast and reference pipelines and of one pass over the frame.
+def _per_frame(times: list, n: int) -> tuple[float, float]:
+    """Median wall and CPU microseconds per frame over repeats of ``n`` frames."""
+    wall, cpu = np.median(np.asarray(times), axis=0)
+    return float(wall / n * 1e6), float(cpu / n * 1e6)
+
+
+def _one_load(sensor, camera, forces, baseline, pipes, *, n_frames, repeats, n_reference, seed, label):
+    """The figures of one size and load case (see :func:`bench_pipeline`)."""
+    from tqdm import tqdm
+
+    from optitact._fastpath import run_split
+    from optitact.ccd import CCD
+    from optitact.render import render
+
+    fast, numpy_pipe, one_thread, all_threads, ref = pipes
+    radiance = render(sensor, forces, camera=camera, transport="two_stage",
+                      background=np.zeros(camera.shape))
+    ccd = CCD()
+    frames = np.stack([ccd.expose(radiance, seed=seed + 100 + k) for k in range(n_frames)])
+    long = np.concatenate([frames] * max(1, -(-64 // n_frames)))  # a long stack: >= 64 frames
+    n_long, n_threads = len(long), all_threads.threads_for(len(long))
+    thr = int(np.ceil(fast.threshold + baseline.mean()))
+    bounds = np.linspace(0, n_long, n_threads + 1).astype(int)
+
+    def floor_threads():
+        run_split(lambda a, b: _floor(long[a:b], thr), bounds)
+
+    for p in (fast, numpy_pipe, one_thread, all_threads):
+        p.process(frames[:2])  # warm caches (level maps, the compiled kernel)
+    floor_threads()
+    t: dict = {}
+    for _ in tqdm(range(repeats), desc=label, unit="repeat", file=sys.stderr):
+        _clock(t, "fast", _each, fast, frames)
+        _clock(t, "numpy", _each, numpy_pipe, frames)
+        _clock(t, "floor", _floor, frames, thr)
+        _clock(t, "batch_1thread", one_thread.process, long)
+        _clock(t, "batch_threads", all_threads.process, long)
+        _clock(t, "floor_1thread", _floor, long, thr)
+        _clock(t, "floor_threads", floor_threads)
+    sub = frames[:n_reference]
+    _clock(t, "reference", _each, ref, sub)  # slow: one timing
+    us = {k: _per_frame(v, n_frames if k in ("fast", "numpy", "floor") else
+                        len(sub) if k == "reference" else n_long) for k, v in t.items()}
+    rf, rr, rn = fast.process(sub), ref.process(sub), numpy_pipe.process(sub)
+    both = rr.contact & rf.contact
+    g_rel = np.abs(rf.G - rr.G)[both] / rr.G[both]
+    lit = [int(np.count_nonzero(f.astype(np.float64) - baseline > fast.threshold)) for f in sub]
+    row = {f"{k}_us": round(v[0], 1) for k, v in us.items()}
+    row |= {f"{k}_cpu_us": round(v[1], 1) for k, v in us.items()}
+    cpu = {k: v[1] for k, v in us.items()}
+    wall = {k: v[0] for k, v in us.items()}
+    return row | {
+        "fast_over_floor": round(cpu["fast"] / cpu["floor"], 2),
+        "numpy_over_floor": round(cpu["numpy"] / cpu["floor"], 2),
+        "batch_over_floor": round(cpu["batch_1thread"] / cpu["floor_1thread"], 2),
+        "speedup": round(cpu["reference"] / cpu["fast"], 1),
+        "threads": n_threads,
+        "threads_speedup": round(wall["batch_1thread"] / wall["batch_threads"], 2),
+        "floor_threads_speedup": round(wall["floor_1thread"] / wall["floor_threads"], 2),
+        "max_G_rel_diff": float(g_rel.max()) if g_rel.size else 0.0,
+        "max_u_diff_mm": float(np.abs(rf.u - rr.u).max()),
+        "flags_identical": bool(np.array_equal(rf.contact, rr.contact)
+                                and np.array_equal(rf.saturated, rr.saturated)),
+        "kernels_identical": bool(all(np.array_equal(getattr(rf, k), getattr(rn, k))
+                                      for k in ("G", "u", "contact", "saturated"))),
+        "elements_in_contact": int(rf.contact[0].sum()),
+        "lit_pixels": int(np.median(lit)),
+    }, frames[0]
+
+
+def bench_pipeline(sizes=((320, 240), (640, 480), (1280, 960), (1920, 1440)), *, loads=(1, 5, 41),
+                   n_frames: int = 16, repeats: int = 5, n_reference: int = 1, seed: int = 0,
+                   startup: bool = True) -> dict:
+    """Per-frame cost of the fast, batch and reference pipelines and of one pass over the frame.
 
     Parameters
     ----------
     sizes : sequence of (width, height)
-        Camera sizes to measure.
+        Camera sizes to measure (default 320x240, 640x480, 1280x960, 1920x1440).
+    loads : sequence of int
+        Elements loaded, keys of :data:`LOAD_CASES` (default 1, 5 and 41).
     n_frames : int
-        Distinct frames per size: one render of all 41 elements loaded
-        (:func:`optitact.loads.random_load`) exposed with ``n_frames`` CCD
-        noise seeds (uint8); the baseline is a no-load render, exposed.
-        Renders are cached in the user cache folder.
+        Distinct frames per size and load: one two-stage render (dark
+        background) exposed with ``n_frames`` CCD noise seeds (uint8). The
+        baseline is the dark background exposed.
     repeats : int
-        Timing repeats; rates are medians over repeats, each repeat timing
-        fast, batch, floor and reference side by side.
+        Timing repeats; figures are medians over repeats, each repeat timing
+        every method side by side.
     n_reference : int
-        Frames the reference processes per repeat (it is slow).
-    spp : int
-        Samples per pixel of the renders.
+        Frames the reference processes, timed once (it is slow).
     seed : int
-        Seed of the load, the renders and the noise.
-    variant : str, optional
-        Mitsuba variant for the renders.
+        Seed of the noise.
+    startup : bool
+        Also time a fresh ``optitact process`` on one frame per size.
 
     Returns
     -------
     dict
-        ``cores``, ``threads`` and per size ``WxH``: ``fast_fps`` (frame by
-        frame), ``batch_fps`` (one ``(T, H, W)`` call), ``reference_fps``,
-        ``speedup`` (fast / reference), ``floor_fps`` (``np.count_nonzero(frame
-        > t)``, one pass), ``floor_over_fast`` (how many times slower than the
-        floor the fast path is), ``max_G_rel_diff`` and ``max_u_diff_mm``
-        (fast vs reference over the reference's frames, elements in
-        contact), ``flags_identical``, ``elements_in_contact``, ``lit_pixels``
-        (median per frame), ``precompute_s`` (the pipeline's construction in
-        this run), ``precompute_cold_s`` and ``precompute_cached_s`` (the
-        construction without the precompute cache, and from the cache on
-        disk, nothing in memory), ``startup_to_first_frame_s`` (wall time of
-        a fresh ``python -m optitact.cli process`` on one frame with a
-        baseline frame, interpreter start to table written, median of
-        three); and side by side: ``kernel``
-        (what ``fast`` ran: ``"numba"``, else ``"numpy"``), ``numpy_fps`` and
-        ``floor_over_numpy`` (the NumPy fallback, frame by frame),
-        ``kernels_identical`` (its readings equal the fast path's bit for
-        bit), ``batch_1thread_fps`` and ``batch_threads_fps`` (a stack of at
-        least 64 frames on one thread and on ``threads``, the cores this
-        process may use) and ``threads_speedup`` (their ratio).
+        ``cores``, ``threads``, ``kernel`` (what the fast path ran:
+        ``"numba"`` or ``"numpy"``), versions, ``table`` (fast / floor, CPU
+        time, per size and load: the README's table) and per size ``WxH``:
+        ``precompute_cold_s`` (the pipeline's construction without the
+        precompute cache, median of up to three), ``precompute_cached_s``
+        (from the cache on disk, nothing in memory), ``startup_to_first_frame_s``
+        (wall time of a fresh ``python -m optitact.cli process`` on one frame with a
+        baseline frame, interpreter start to table written), and per load
+        ``loads[n]``: microseconds per frame, wall (``*_us``) and CPU
+        (``*_cpu_us``), of ``fast`` (frame by frame, one thread), ``numpy``
+        (the NumPy fallback, frame by frame), ``floor`` (``np.count_nonzero(frame
+        > t)`` frame by frame), ``batch_1thread`` and ``batch_threads`` (one
+        call on a stack of at least 64 frames, one thread and every core),
+        ``floor_1thread`` and ``floor_threads`` (the floor over the same
+        stack, one thread and split across as many threads: the bound on
+        the threads' speed-up), ``reference``; the ratios ``fast_over_floor``,
+        ``numpy_over_floor``, ``batch_over_floor`` (CPU time),
+        ``threads_speedup`` and ``floor_threads_speedup`` (wall time, one
+        thread over ``threads``), ``speedup`` (reference / fast); the
+        exactness figures ``max_G_rel_diff`` and ``max_u_diff_mm`` (fast vs
+        reference, elements in contact), ``flags_identical``,
+        ``kernels_identical`` (NumPy fallback vs fast, bit for bit); and
+        ``elements_in_contact``, ``lit_pixels`` (median per frame).
     """
     import os
     import platform
 
-    from tqdm import tqdm
-
-    from optitact._cache import cached_render
     from optitact.ccd import CCD
-    from optitact.loads import random_load
     from optitact.pipeline import Pipeline, _cores
+    from optitact.studies.bench_render import render_cases
 
     n_frames = integer(n_frames, "n_frames", minimum=1)
     repeats = integer(repeats, "repeats", minimum=1)
     n_reference = integer(n_reference, "n_reference", minimum=1)
-    spp = integer(spp, "spp", minimum=1)
     sensor = DomeSensor.default()
-    forces = random_load(sensor, seed=seed)
-    ccd = CCD()
+    cases = render_cases(sensor)
+    for n in loads:
+        if n not in LOAD_CASES:
+            from optitact.errors import InputError
+
+            raise InputError(f"loads: expected elements loaded among {sorted(LOAD_CASES)}, got {n!r}")
     result: dict = {"cores": os.cpu_count(), "threads": _cores(),
                     "python": platform.python_version(), "numpy": np.__version__,
-                    "frames": f"{n_frames} uint8 frames per size: all 41 elements loaded "
-                              f"(random_load seed {seed}), rendered at {spp} spp, CCD noise",
-                    "floor": "np.count_nonzero(frame > threshold), one pass over the frame"}
+                    "frames": f"{n_frames} uint8 frames per size and load: a two-stage render of the "
+                              f"load case over a dark background, exposed with CCD noise (seeds "
+                              f"{seed + 100}..); baseline: the dark background exposed",
+                    "floor": "np.count_nonzero(frame > threshold), one pass over the frame",
+                    "table": {}}
     for width, height in sizes:
         camera = FisheyeCamera(width=integer(width, "width", minimum=2),
                                height=integer(height, "height", minimum=2))
-        print(f"optitact: bench pipeline {width}x{height}: rendering (cached after the first run)",
-              file=sys.stderr)
-        loaded = cached_render(sensor, forces, camera=camera, spp=spp, seed=seed, variant=variant)
-        empty = cached_render(sensor, np.zeros_like(forces), camera=camera, spp=spp,
-                              seed=seed + 1, variant=variant)
-        frames = np.stack([ccd.expose(loaded, seed=seed + 100 + k) for k in range(n_frames)])
-        baseline = ccd.expose(empty, seed=seed + 99)
-        t0 = time.perf_counter()
-        fast = Pipeline(sensor, camera, baseline=baseline)
-        precompute = time.perf_counter() - t0
-        ref = fast.replace(method="reference")
-        numpy_pipe = fast.replace(kernel="numpy")
-        one_thread = fast.replace(threads=1)
-        all_threads = fast.replace(threads=_cores())
-        long = np.concatenate([frames] * max(1, -(-64 // n_frames)))  # a long stack: >= 64 frames
-        sub = frames[:n_reference]
-        t_fast, t_batch, t_floor, t_ref, t_numpy, t_b1, t_bn = [], [], [], [], [], [], []
-        thr = int(np.ceil(fast.threshold + baseline.mean()))
-        for p in (fast, numpy_pipe, one_thread, all_threads):
-            p.process(frames[:2])  # warm caches (level maps, the compiled kernel)
-        for _ in tqdm(range(repeats), desc=f"bench pipeline {width}x{height}", unit="repeat",
-                      file=sys.stderr):
-            _clock(t_fast, _each, fast, frames)
-            _clock(t_numpy, _each, numpy_pipe, frames)
-            _clock(t_batch, fast.process, frames)
-            _clock(t_b1, one_thread.process, long)
-            _clock(t_bn, all_threads.process, long)
-            t = time.perf_counter()
-            for f in frames:
-                np.count_nonzero(f > thr)
-            t_floor.append(time.perf_counter() - t)
-            t = time.perf_counter()
-            for f in sub:
-                ref.process(f)
-            t_ref.append(time.perf_counter() - t)
-        rf, rr = fast.process(sub), ref.process(sub)
-        both = rr.contact & rf.contact
-        g_rel = np.abs(rf.G - rr.G)[both] / rr.G[both]
-        lit = [int(np.count_nonzero(f.astype(np.float64) - baseline > fast.threshold))
-               for f in sub]
-        fast_fps = _median_rate(n_frames, t_fast)
-        floor_fps = _median_rate(n_frames, t_floor)
-        ref_fps = _median_rate(len(sub), t_ref)
-        numpy_fps = _median_rate(n_frames, t_numpy)
-        b1_fps, bn_fps = _median_rate(len(long), t_b1), _median_rate(len(long), t_bn)
-        rn = numpy_pipe.process(sub)
-        cold, cached, startup = _start_up(sensor, camera, baseline, frames[0], repeats=min(repeats, 3))
-        result[f"{width}x{height}"] = {
-            "kernel": fast.kernel,
-            "fast_fps": round(fast_fps, 1),
-            "numpy_fps": round(numpy_fps, 1),
-            "floor_over_numpy": round(floor_fps / numpy_fps, 2),
-            "kernels_identical": bool(all(np.array_equal(getattr(rf, k), getattr(rn, k))
-                                          for k in ("G", "u", "contact", "saturated"))),
-            "batch_1thread_fps": round(b1_fps, 1),
-            "batch_threads_fps": round(bn_fps, 1),
-            "threads_speedup": round(bn_fps / b1_fps, 2),
-            "batch_fps": round(_median_rate(n_frames, t_batch), 1),
-            "reference_fps": round(ref_fps, 2),
-            "speedup": round(fast_fps / ref_fps, 1),
-            "floor_fps": round(floor_fps, 1),
-            "floor_over_fast": round(floor_fps / fast_fps, 2),
-            "max_G_rel_diff": float(g_rel.max()) if g_rel.size else 0.0,
-            "max_u_diff_mm": float(np.abs(rf.u - rr.u).max()),
-            "flags_identical": bool(np.array_equal(rf.contact, rr.contact)
-                                    and np.array_equal(rf.saturated, rr.saturated)),
-            "elements_in_contact": int(rf.contact[0].sum()),
-            "lit_pixels": int(np.median(lit)),
-            "precompute_s": round(precompute, 3),
-            "precompute_cold_s": round(cold, 3),
-            "precompute_cached_s": round(cached, 4),
-            "startup_to_first_frame_s": round(startup, 3),
-        }
+        key = f"{width}x{height}"
+        baseline = CCD().expose(np.zeros(camera.shape), seed=seed + 99)
+        fast = Pipeline(sensor, camera, baseline=baseline, threads=1)
+        result["kernel"] = fast.kernel
+        pipes = (fast, fast.replace(kernel="numpy"), fast, fast.replace(threads=None),
+                 fast.replace(method="reference"))
+        row: dict = {"loads": {}}
+        for n in loads:
+            row["loads"][str(n)], frame = _one_load(sensor, camera, cases[LOAD_CASES[n]], baseline, pipes,
+                                             n_frames=n_frames, repeats=repeats, n_reference=n_reference,
+                                             seed=seed, label=f"bench pipeline {key}, {n} loaded")
+        print(f"optitact: bench pipeline {key}: precompute and start-up", file=sys.stderr)
+        cold, cached, start = _start_up(sensor, camera, baseline, frame, repeats=min(repeats, 3),
+                                        startup=startup)
+        row |= {"precompute_cold_s": round(cold, 3), "precompute_cached_s": round(cached, 4),
+                "startup_to_first_frame_s": None if start is None else round(start, 3)}
+        result[key] = row
+        result["table"][key] = {n: r["fast_over_floor"] for n, r in row["loads"].items()}
     return result
