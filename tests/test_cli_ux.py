@@ -41,7 +41,7 @@ def fake_render(monkeypatch):
 
     calls = []
 
-    def render_frame(sensor, forces, args):
+    def render_frame(sensor, forces, args, camera=None):
         calls.append(args)
         frame = _known_frame(args.height, args.width, np.uint16 if args.bits > 8 else np.uint8)
         return {"radiance": frame.astype(np.float32) / 255, "frame": frame,

@@ -17,6 +17,7 @@ import pytest
 import optitact
 from optitact.calib import (Calibration, default_calibration, fit_presses, press_curve, press_report,
                             read_presses)
+from optitact.calib.curves import zero_shear_centroid
 from optitact.calib.presses import MIN_PRESSES_REFINE, MIN_PRESSES_SCRATCH
 from optitact.errors import InputError, OptitactWarning, ShapeError
 from optitact.forces import global_from_local
@@ -37,17 +38,19 @@ def true_calibration(seed: int = 7) -> Calibration:
     shape = np.stack([np.ones(N_EL), np.ones(N_EL), rng.uniform(0.8, 1.3, N_EL), rng.uniform(0.8, 1.2, N_EL)],
                      axis=1)
     return replace(start, g=start.g * shape, g_scale=start.g_scale * k, g_max=start.g_max * k * 3,
-                   u_max=start.u_max * 3, f=start.f / c[:, None])
+                   u_max=start.u_max * 3, f=start.f / c[:, None], crosstalk=None)
 
 
 def readings_of(cal: Calibration, forces: np.ndarray, *, seed: int = 0, noise: float = 0.0) -> Readings:
-    """Readings whose forces under ``cal`` are ``forces`` (T, E, 3) (coupled model), with relative
-    noise on G and ``noise`` x 0.02 mm on u."""
+    """Readings whose forces under ``cal`` (each element on its own) are ``forces`` (T, E, 3) (coupled
+    model), with relative noise on G and ``noise`` x 0.02 mm on u."""
     fz = forces[..., 2]
     contact = fz > 0
     fzs = np.where(contact, fz, 1.0)
     a, b = cal.f[:, 0], cal.f[:, 1]
     u = forces[..., :2] * ((a + b * np.sqrt(fzs)) / fzs)[..., None]
+    if cal.u0 is not None:  # where the centroid sits without shear
+        u = u + zero_shear_centroid(cal.u0, fzs)
     q = np.sum(u / cal.u_scale[:, None] * cal.gu, axis=-1)
     lo, hi = np.zeros_like(fz), np.broadcast_to(cal.g_max / cal.g_scale, fz.shape).copy()
     for _ in range(60):  # g(s) + s q is increasing in s on the range: bisection

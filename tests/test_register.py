@@ -326,8 +326,8 @@ def test_element_offsets_fit_with_their_prior(standins):
 
 
 def test_a_set_for_a_registered_sensor_uses_its_camera(tmp_path, monkeypatch):
-    """calibrate generate --setup: the set is made for the setup's camera, path-traced (two-stage
-    takes only the on-axis equidistant fisheye)."""
+    """calibrate generate --setup: the set is made for the setup's camera, two-stage like any other
+    (the emission table belongs to the patches, not the camera)."""
     import json
 
     import optitact.calib as calib
@@ -347,7 +347,7 @@ def test_a_set_for_a_registered_sensor_uses_its_camera(tmp_path, monkeypatch):
 
     assert main(["calibrate", "generate", "--frames", "2", "--out", str(tmp_path / "s.zarr"),
                  "--setup", str(setup)]) == 2
-    assert seen["camera"] == cam and seen["render_mode"] == "pixels"
+    assert seen["camera"] == cam and seen["render_mode"] == "two_stage"
     assert seen["sensor"] == optitact.DomeSensor.default()
 
 
