@@ -24,6 +24,7 @@ from optitact.camera import Camera
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
 from optitact.sensor import DomeSensor
+from optitact.uncertainty import Z90
 
 __all__ = ["ForceField", "frame_totals", "global_from_local", "local_from_global"]
 
@@ -99,8 +100,6 @@ _CSV_COLUMNS = ("element", "fx", "fy", "fz", "fx_global", "fy_global", "fz_globa
 _FLAG_NAMES = ("contact", "clamped", "saturated")
 #: Columns of the standard errors, written after the others when a field has them.
 _SE_COLUMNS = ("fx_se", "fy_se", "fz_se")
-#: Two-sided 90 % interval half-width in standard errors (normal errors).
-Z90 = 1.6448536269514722
 
 
 def _freeze(arr: np.ndarray) -> np.ndarray:

@@ -49,7 +49,10 @@ from ._validate import positive
 from .errors import InputError, ShapeError
 from .steps import check_frames
 
-__all__ = ["PixelNoise", "ReadingErrors", "reading_errors"]
+__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "reading_errors"]
+
+#: Half-width of the two-sided 90 % interval of a normal error, in standard errors.
+Z90 = 1.6448536269514722
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,7 @@ class PixelNoise:
         return cls(float(ccd.dn_per_electron))
 
     @classmethod
-    def estimate(cls, noload, pressed, *, min_signal: float = 5.0) -> PixelNoise:
+    def estimate(cls, noload, pressed, *, min_signal: float = 20.0) -> PixelNoise:
         r"""Measure the conversion gain from a no-load stack and a stack under one constant load.
 
         Parameters
@@ -102,14 +105,17 @@ class PixelNoise:
             and pressed by a load that does not change between frames.
         min_signal : float
             Only pixels whose mean signal (pressed minus unloaded mean) is
-            above this (grey levels) enter the fit.
+            above this (grey levels) enter the fit (default 20: below a few
+            grey levels of noise, rounding bends the photon-transfer line).
 
         Returns
         -------
         PixelNoise
             ``dn_per_electron`` the slope ``g`` of the photon-transfer line
-            ``var_pressed - var_noload = g (mean_pressed - mean_noload)``
-            over the lit pixels (least squares through the origin), and
+            ``var_pressed - var_noload = c + g (mean_pressed - mean_noload)``
+            over the lit pixels (least squares; the intercept ``c`` takes
+            the rounding noise, which a dark pixel whose noise is well below
+            one grey level does not show), and
             ``read_sigma`` the no-load stack's rms temporal noise times
             ``sqrt(1 + 1/T)`` (the noise of a frame minus the stack's mean).
 
@@ -124,8 +130,8 @@ class PixelNoise:
         -----
         Shot noise has the variance of the electron count, so in grey levels
         ``var = g^2 N_e = g (mean signal)``; read noise and quantisation
-        add the same variance with and without load and cancel in the
-        difference.
+        add (nearly) the same variance with and without load and go into
+        the intercept.
         """
         a, b = (np.asarray(s, dtype=np.float64) for s in (noload, pressed))
         for name, s in (("noload", a), ("pressed", b)):
@@ -140,8 +146,7 @@ class PixelNoise:
         if np.count_nonzero(lit) < 10:
             raise InputError(f"pressed: only {np.count_nonzero(lit)} pixels have a mean signal above "
                              f"min_signal={min_signal:g} grey levels; press harder or lower min_signal")
-        s, e = signal[lit], excess[lit]
-        g = max(float(s @ e / (s @ s)), 0.0)
+        g = max(float(np.polyfit(signal[lit], excess[lit], 1)[0]), 0.0)
         read = math.sqrt(float(a.var(axis=0, ddof=1).mean()) * (1.0 + 1.0 / a.shape[0]))
         return cls(g, read)
 
@@ -246,3 +251,40 @@ def reading_errors(pipeline, frames, noise: PixelNoise, readings=None) -> Readin
     contact = np.asarray(readings.contact).reshape(t_n, n_el)
     cov[~contact] = 0.0
     return ReadingErrors(cov[0] if single else cov)
+
+
+def coverage(estimates, truth, stderr, *, z: float = Z90, where=None) -> np.ndarray:
+    """Fraction of true values inside the interval ``estimate +- z stderr``, per axis.
+
+    Parameters
+    ----------
+    estimates, truth, stderr : (..., 3) array_like
+        Estimated forces, true forces and the estimates' standard errors (N).
+    z : float
+        Half-width in standard errors (default :data:`Z90`: the 90 % interval).
+    where : bool array_like of the leading shape, optional
+        Samples to count (e.g. the loaded elements); default all.
+
+    Returns
+    -------
+    (3,) ndarray
+        Per axis; NaN when no sample is counted. For honest standard errors
+        of normal errors it is close to 0.9 (binomial spread ``sqrt(0.09 / n)``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(1)
+    >>> se = np.full((20000, 3), 0.01)
+    >>> est = rng.normal(0.0, se)
+    >>> [round(float(c), 2) for c in coverage(est, np.zeros_like(est), se)]
+    [0.9, 0.9, 0.9]
+    """
+    est, tru, se = (np.asarray(a, dtype=np.float64) for a in (estimates, truth, stderr))
+    if not est.shape == tru.shape == se.shape or est.shape[-1:] != (3,):
+        raise ShapeError(f"estimates, truth and stderr must have the same shape (..., 3), got {est.shape}, "
+                         f"{tru.shape} and {se.shape}")
+    inside = np.abs(est - tru) <= positive(z, "z") * se
+    mask = np.ones(est.shape[:-1], bool) if where is None else np.asarray(where, bool)
+    n = int(mask.sum())
+    return inside[mask].mean(axis=0) if n else np.full(3, np.nan)
