@@ -374,12 +374,7 @@ class Calibration:
         clamped : (E,) or (T, E) bool
             The reading was outside the fitted range and was clamped to it.
         """
-        if not isinstance(readings, Readings):
-            raise TypeError(f"readings must be Readings, got {type(readings).__name__}")
-        if readings.n_elements != len(self.g):
-            raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
-                             f"{len(self.g)}")
-        _check_readings(readings)
+        self._check(readings)
         if self.crosstalk is None:
             out, clamped = self._per_element(readings.G, readings.u)
         else:
@@ -387,6 +382,15 @@ class Calibration:
                                                    lambda G: self._per_element(G, readings.u))
         out[~readings.contact] = 0.0
         return out, clamped & readings.contact
+
+    def _check(self, readings: Readings) -> None:
+        """TypeError, ShapeError or InputError unless ``readings`` are finite Readings of this sensor."""
+        if not isinstance(readings, Readings):
+            raise TypeError(f"readings must be Readings, got {type(readings).__name__}")
+        if readings.n_elements != len(self.g):
+            raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
+                             f"{len(self.g)}")
+        _check_readings(readings)
 
     def _per_element(self, G, u) -> tuple[np.ndarray, np.ndarray]:
         """Forces (..., E, 3) and clamp flags of every element on its own (contact not applied)."""
@@ -463,12 +467,7 @@ class Calibration:
 
     def _local_jacobian(self, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
         """Each element's own curves differentiated at its reading: (..., E, 3, 3), and the G used."""
-        if not isinstance(readings, Readings):
-            raise TypeError(f"readings must be Readings, got {type(readings).__name__}")
-        if readings.n_elements != len(self.g):
-            raise ShapeError(f"readings have {readings.n_elements} elements, the calibration "
-                             f"{len(self.g)}")
-        _check_readings(readings)
+        self._check(readings)
         G, u = np.asarray(readings.G, np.float64), np.asarray(readings.u, np.float64)
         if self.crosstalk is not None:
             G = self.crosstalk.solve(self.sensor, G, readings.contact, lambda g: self._per_element(g, u))[2]

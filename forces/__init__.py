@@ -492,7 +492,7 @@ class ForceField:
         if self.stderr is not None and idx.size:
             upper = np.clip(fz + Z90 * self.stderr[idx, 2], 0.0, None)
             ax.scatter(centres[idx, 1], centres[idx, 0], s=25.0 + 175.0 * upper / norm.vmax, facecolors="none",
-                       edgecolors="white", linewidths=0.8, linestyles="--", zorder=3)
+                       edgecolors="tab:pink", linewidths=0.9, linestyles="--", zorder=3)
             sxy = self.stderr[idx, :2] * Z90
             t = np.linspace(0.0, 2.0 * np.pi, 25)
             ring = np.stack([np.cos(t), np.sin(t)], axis=-1)                # (25, 2)
