@@ -24,6 +24,7 @@ from optitact.camera import Camera
 from optitact.contact import check_forces
 from optitact.errors import InputError, ShapeError
 from optitact.sensor import DomeSensor
+from optitact.uncertainty import Z90
 
 __all__ = ["ForceField", "frame_totals", "global_from_local", "local_from_global"]
 
@@ -97,6 +98,8 @@ def frame_totals(sensor: DomeSensor, local, contact) -> dict[str, np.ndarray]:
 _CSV_COLUMNS = ("element", "fx", "fy", "fz", "fx_global", "fy_global", "fz_global",
                 "contact", "clamped", "saturated")
 _FLAG_NAMES = ("contact", "clamped", "saturated")
+#: Columns of the standard errors, written after the others when a field has them.
+_SE_COLUMNS = ("fx_se", "fy_se", "fz_se")
 
 
 def _freeze(arr: np.ndarray) -> np.ndarray:
@@ -138,6 +141,10 @@ class ForceField:
         default all False.
     saturated : (N,) bool array, optional
         The element's image region saturated the camera; default all False.
+    stderr : (N, 3) array_like, optional
+        Standard errors of ``local`` (N), finite and >= 0, e.g. from
+        :meth:`optitact.calib.Calibration.stderr`; stored read-only. None:
+        not known.
 
     Raises
     ------
@@ -145,9 +152,9 @@ class ForceField:
         ``sensor`` is not a :class:`DomeSensor`, ``local`` is not a real
         numeric array (bool included), or a flag is not a bool array.
     ShapeError
-        ``local`` is not (N, 3) or a flag is not (N,).
+        ``local`` or ``stderr`` is not (N, 3) or a flag is not (N,).
     InputError
-        ``local`` holds NaN or infinity.
+        ``local`` holds NaN or infinity, ``stderr`` a negative or non-finite value.
 
     Convention
     ----------
@@ -191,6 +198,7 @@ class ForceField:
     contact: np.ndarray | None = None
     clamped: np.ndarray | None = None
     saturated: np.ndarray | None = None
+    stderr: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.sensor, DomeSensor):
@@ -204,6 +212,14 @@ class ForceField:
             value = getattr(self, name)
             object.__setattr__(self, name, _flag_array(defaults[name] if value is None else value,
                                                        name, n))
+        if self.stderr is not None:
+            se = real_array(self.stderr, "stderr")
+            if se.shape != (n, 3):
+                raise ShapeError(f"stderr must have shape ({n}, 3) (one per element and axis), got {se.shape}")
+            finite(se, "stderr")
+            if np.any(se < 0):
+                raise InputError(f"stderr must be >= 0, got {se.min()}")
+            object.__setattr__(self, "stderr", _freeze(np.array(se, dtype=np.float64)))
 
     def __repr__(self) -> str:
         f = ", ".join(f"{v:.4g}" for v in self.resultant)
@@ -268,6 +284,7 @@ class ForceField:
 
         Keys: ``element, fx, fy, fz`` (local, N), ``fx_global, fy_global,
         fz_global`` (N) and the flags ``contact, clamped, saturated`` (bool);
+        then, when :attr:`stderr` is known, ``fx_se, fy_se, fz_se`` (N).
         ``pandas.DataFrame(ff.as_dict())`` gives one row per element. The
         arrays are new (writeable) copies.
         """
@@ -279,13 +296,15 @@ class ForceField:
             "fx_global": g[:, 0].copy(), "fy_global": g[:, 1].copy(), "fz_global": g[:, 2].copy(),
             "contact": self.contact.copy(), "clamped": self.clamped.copy(),
             "saturated": self.saturated.copy(),
+            **({} if self.stderr is None else {k: self.stderr[:, i].copy() for i, k in enumerate(_SE_COLUMNS)}),
         }
 
     def to_csv(self, path: str | os.PathLike) -> Path:
         """Write :meth:`as_dict` as CSV with a header row, atomically; returns the path.
 
         Floats are written with ``repr`` (shortest exact round trip), flags as
-        0/1. The rows go to a temporary file renamed to ``path`` when complete
+        0/1; the standard errors ``fx_se, fy_se, fz_se`` come last, when known.
+        The rows go to a temporary file renamed to ``path`` when complete
         (:func:`optitact.io.atomic_write`): ``path`` is the old file or the
         whole new one, never half of it.
         """
@@ -293,13 +312,16 @@ class ForceField:
 
         table = self.as_dict()
 
+        se = () if self.stderr is None else _SE_COLUMNS
+
         def write(tmp: Path) -> None:
             with tmp.open("w", newline="") as fh:
                 w = csv.writer(fh)
-                w.writerow(_CSV_COLUMNS)
+                w.writerow(_CSV_COLUMNS + se)
                 for i in range(self.n_elements):
                     w.writerow([int(i), *(repr(float(table[k][i])) for k in _CSV_COLUMNS[1:7]),
-                                *(int(table[k][i]) for k in _FLAG_NAMES)])
+                                *(int(table[k][i]) for k in _FLAG_NAMES),
+                                *(repr(float(table[k][i])) for k in se)])
 
         return atomic_write(path, write)
 
@@ -311,7 +333,8 @@ class ForceField:
         ``fx, fy, fz`` (element-local, N) are needed, in any order, whatever
         their case and a unit in parentheses or brackets (``Fx (N)``);
         ``element``, the global columns ``fx_global, fy_global, fz_global``
-        and the 0/1 flags ``contact, clamped, saturated`` are read when
+        the 0/1 flags ``contact, clamped, saturated`` and the standard errors
+        ``fx_se, fy_se, fz_se`` (all three or none) are read when
         present (a missing flag takes the :class:`ForceField` default), other
         columns are ignored. With an ``element`` column any subset of the
         elements may be listed, each at most once (the others are unloaded).
@@ -336,10 +359,16 @@ class ForceField:
 
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
-        cols = read_element_table(path, sensor.n_elements, _CSV_COLUMNS[1:4], optional=_CSV_COLUMNS[4:7],
+        cols = read_element_table(path, sensor.n_elements, _CSV_COLUMNS[1:4],
+                                  optional=_CSV_COLUMNS[4:7] + _SE_COLUMNS,
                                   flags=_FLAG_NAMES, headerless=False, what="force field")
         local = np.stack([cols[k] for k in _CSV_COLUMNS[1:4]], axis=1)
-        ff = cls(sensor, local, **{k: cols.get(k) for k in _FLAG_NAMES})
+        has_se = [k in cols for k in _SE_COLUMNS]
+        if any(has_se) and not all(has_se):
+            raise ShapeError(f"{path}: the standard-error columns {', '.join(_SE_COLUMNS)} come together; "
+                             f"got only {', '.join(k for k in _SE_COLUMNS if k in cols)}")
+        se = np.stack([cols[k] for k in _SE_COLUMNS], axis=1) if all(has_se) else None
+        ff = cls(sensor, local, **{k: cols.get(k) for k in _FLAG_NAMES}, stderr=se)
         given = [k for k in _CSV_COLUMNS[4:7] if k in cols]
         if given:
             j = [_CSV_COLUMNS.index(k) - 4 for k in given]
@@ -404,7 +433,12 @@ class ForceField:
         its edge. Contact elements are discs whose colour (colorbar
         "Fz (N)") and area grow with ``Fz``; clamped elements get a red ring,
         saturated elements an orange square. The resultant force is written
-        in the lower-left corner.
+        in the lower-left corner. With :attr:`stderr` known, each contact
+        element's 90 % interval is drawn: around the shear arrow's tip the
+        ellipse ``(Fx, Fy) + 1.645 (sx cos t, sy sin t)`` mapped onto the
+        dome as the arrow is (a :class:`matplotlib.patches.Polygon`, gid
+        ``"shear-ci-<i>"``), and around the disc a dashed ring whose area is
+        that of a disc of ``Fz + 1.645 sz``.
 
         Convention
         ----------
@@ -418,6 +452,7 @@ class ForceField:
         Figure = require("matplotlib.figure", purpose="plots").Figure
         Line2D = require("matplotlib.lines", purpose="plots").Line2D
         FancyArrowPatch = require("matplotlib.patches", purpose="plots").FancyArrowPatch
+        Polygon = require("matplotlib.patches", purpose="plots").Polygon
 
         if not isinstance(camera, Camera):
             raise TypeError(f"camera must be a Camera (e.g. a FisheyeCamera), got {type(camera).__name__}")
@@ -454,6 +489,22 @@ class ForceField:
         fig.colorbar(sc, ax=ax, label="Fz (N)", shrink=0.85)
         handles.append(Line2D([], [], ls="", marker="o", ms=7, mfc="tab:green", mec="white",
                               label="contact (size, colour: Fz)"))
+        if self.stderr is not None and idx.size:
+            upper = np.clip(fz + Z90 * self.stderr[idx, 2], 0.0, None)
+            ax.scatter(centres[idx, 1], centres[idx, 0], s=25.0 + 175.0 * upper / norm.vmax, facecolors="none",
+                       edgecolors="tab:pink", linewidths=0.9, linestyles="--", zorder=3)
+            sxy = self.stderr[idx, :2] * Z90
+            t = np.linspace(0.0, 2.0 * np.pi, 25)
+            ring = np.stack([np.cos(t), np.sin(t)], axis=-1)                # (25, 2)
+            for k, i in enumerate(idx):
+                if not np.any(sxy[k] > 0):
+                    continue
+                pts = (self.local[i, :2] + ring * sxy[k]) * scale
+                poly = self._visible_tips(camera, np.full(len(t), i), pts)
+                ax.add_patch(Polygon(poly[:, ::-1], closed=True, facecolor="tab:cyan", alpha=0.25,
+                                     edgecolor="tab:cyan", linewidth=0.6, zorder=4, gid=f"shear-ci-{i}"))
+            handles.append(Line2D([], [], ls="", marker="o", ms=9, mfc="tab:cyan", alpha=0.4, mec="tab:cyan",
+                                  label="90 % interval (shear: ellipse; Fz: dashed ring)"))
 
         shear = self.local[idx, :2]
         moving = np.hypot(shear[:, 0], shear[:, 1]) > 0

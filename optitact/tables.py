@@ -485,7 +485,10 @@ class ReadingsWriter:
     also ``fx, fy, fz`` (element-local, N), ``fx_global, fy_global,
     fz_global`` (the force on the element in the sensor frame, N; as
     :meth:`optitact.forces.ForceField.as_dict`) and ``clamped`` (the
-    calibration clamped the reading to its fitted range); and a second table,
+    calibration clamped the reading to its fitted range), and with
+    ``stderr=True`` after those ``fx_se, fy_se, fz_se`` (standard errors of
+    the element-local forces, N: :meth:`optitact.calib.Calibration.stderr`);
+    and a second table,
     :func:`per_frame_path` (``out.per_frame.csv``), with one row per frame:
     :data:`FRAME_COLUMNS`, i.e. ``frame, source``, the elements in contact and
     clamped, ``total_normal`` (sum of Fz over contact elements, N), the
@@ -525,14 +528,19 @@ class ReadingsWriter:
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
     FORCE_COLUMNS = ("fx", "fy", "fz", "fx_global", "fy_global", "fz_global", "clamped")
+    SE_COLUMNS = ("fx_se", "fy_se", "fz_se")
     FRAME_COLUMNS = ("frame", "source", "n_contact", "n_clamped", "total_normal", "resultant_x",
                      "resultant_y", "resultant_z", "centre_of_pressure_x", "centre_of_pressure_y",
                      "centre_of_pressure_z")
 
     def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None,
-                 visible: bool = False) -> None:
+                 visible: bool = False, stderr: bool = False) -> None:
         self.path = Path(path)
         self.with_forces = forces
+        if stderr and not forces:
+            raise InputError("stderr=True needs forces=True: the standard errors are of the forces")
+        #: The table has the standard-error columns :data:`SE_COLUMNS` (after the force columns).
+        self.with_stderr = bool(stderr)
         if forces:
             from optitact.sensor import DomeSensor
 
@@ -552,7 +560,8 @@ class ReadingsWriter:
                 return _PartialParquet(target, header)
             return _PartialFile(target, header, partial_path(target) if visible else None)
 
-        self._files = [partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ()))]
+        self._files = [partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ())
+                               + (self.SE_COLUMNS if self.with_stderr else ()))]
         if forces:
             try:
                 self._files.append(partial(per_frame_path(self.path), self.FRAME_COLUMNS))
@@ -573,8 +582,11 @@ class ReadingsWriter:
         """The files this writer makes: ``path`` (and :func:`per_frame_path` with forces)."""
         return [f.path for f in self._files]
 
-    def write(self, readings, sources: Sequence[str], forces=None, clamped=None) -> None:
-        """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept."""
+    def write(self, readings, sources: Sequence[str], forces=None, clamped=None, stderr=None) -> None:
+        """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept.
+
+        ``stderr`` (``(T, E, 3)`` or ``(E, 3)`` N) is needed by a writer made with ``stderr=True``.
+        """
         r = readings if readings.is_stack else readings._lifted()
         n, n_el = len(r), r.n_elements
         if n != len(sources):
@@ -592,6 +604,14 @@ class ReadingsWriter:
             gl = tot["global"]
             cols |= {"fx": f[..., 0], "fy": f[..., 1], "fz": f[..., 2], "fx_global": gl[..., 0],
                      "fy_global": gl[..., 1], "fz_global": gl[..., 2], "clamped": cl}
+            if self.with_stderr:
+                if stderr is None:
+                    raise ValueError("this writer has standard-error columns: pass stderr")
+                se = np.asarray(stderr, dtype=np.float64)
+                if se.size != n * n_el * 3:
+                    raise ShapeError(f"stderr must have shape {(n, n_el, 3)}, got {se.shape}")
+                se = se.reshape(n, n_el, 3)
+                cols |= {k: se[..., i] for i, k in enumerate(self.SE_COLUMNS)}
             res, cop = tot["resultant"], tot["centre_of_pressure"]
             per_frame = {"n_contact": np.asarray(tot["n_contact"], np.int64), "n_clamped": cl.sum(axis=1),
                          "total_normal": np.asarray(tot["total_normal"], np.float64),
@@ -608,7 +628,8 @@ class ReadingsWriter:
             self.frames += n
             return
         heads = [f"{self.frames + k},{_csv_cell(src)}," for k, src in enumerate(sources)]
-        names = self.COLUMNS[3:] + (self.FORCE_COLUMNS if self.with_forces else ())
+        names = self.COLUMNS[3:] + (self.FORCE_COLUMNS if self.with_forces else ()) \
+            + (self.SE_COLUMNS if self.with_stderr else ())
         columns = [list(range(n_el)) * n]
         for name in names:
             v = cols[name]

@@ -322,3 +322,29 @@ def test_csv_numbers_read_back_bit_for_bit(tmp_path):
         assert [row[name] for row in rows] == [repr(v) for v in want.reshape(-1).tolist()]
     assert [int(row["contact"]) for row in rows] == (g > 1.0).astype(int).reshape(-1).tolist()
     assert [int(row["element"]) for row in rows] == list(range(41)) * 3
+
+
+def test_the_table_gets_standard_error_columns_after_the_others(tmp_path):
+    from optitact.calib import default_calibration
+    from optitact.readings import Readings
+    from optitact.tables import ReadingsWriter
+
+    cal = default_calibration()
+    r = Readings(cal.g_max * 0.5, np.zeros((41, 2)), np.ones(41, bool), np.zeros(41, bool))
+    forces, clamped = cal.forces(r)
+    se = cal.stderr(r)
+    path = tmp_path / "out.csv"
+    with ReadingsWriter(path, forces=True, sensor=cal.sensor, stderr=True) as w:
+        w.write(r, ["a"], forces, clamped, se)
+    rows = list(csv.reader(path.read_text().splitlines()))
+    assert tuple(rows[0]) == ReadingsWriter.COLUMNS + ReadingsWriter.FORCE_COLUMNS + ("fx_se", "fy_se", "fz_se")
+    np.testing.assert_array_equal(np.array([row[-3:] for row in rows[1:]], float), se)
+    with ReadingsWriter(tmp_path / "plain.csv", forces=True, sensor=cal.sensor) as w:
+        w.write(r, ["a"], forces, clamped)
+    head = (tmp_path / "plain.csv").read_text().splitlines()[0]
+    assert tuple(head.split(",")) == ReadingsWriter.COLUMNS + ReadingsWriter.FORCE_COLUMNS
+    with pytest.raises(InputError, match="stderr=True needs forces"):
+        ReadingsWriter(tmp_path / "x.csv", stderr=True)
+    with pytest.raises(ValueError, match="pass stderr"), \
+            ReadingsWriter(tmp_path / "y.csv", forces=True, sensor=cal.sensor, stderr=True) as w:
+        w.write(r, ["a"], forces, clamped)

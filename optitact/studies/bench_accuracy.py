@@ -12,6 +12,7 @@ import numpy as np
 from optitact._validate import integer
 from optitact.errors import InputError
 from optitact.camera import FisheyeCamera
+from optitact.uncertainty import coverage
 
 __all__ = ["bench_accuracy"]
 
@@ -68,8 +69,13 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         ``fx_rmse_n``, ``fy_rmse_n``, ``fz_rmse_n``, the same as % of full
         scale (``fz_max`` for Fz, ``shear_max`` for Fx and Fy),
         ``fx/fy/fz_bias_pct_fs``, ``per_ring`` (RMSE % FS per axis),
-        ``max_abs_error_n``, ``contact_flag_error_rate`` and
-        ``clamped_rate``, over every loaded element sample (``Fz > 0``) of the
+        ``max_abs_error_n``, ``contact_flag_error_rate``, ``clamped_rate``
+        and ``coverage_90`` (per axis: the fraction of true forces inside
+        the estimate's 90 % interval, ``+- 1.645`` standard errors of
+        :meth:`~optitact.calib.Calibration.stderr`: the frames' pixel noise
+        through :func:`optitact.uncertainty.reading_errors` with the set's
+        CCD gain, plus the calibration's model error), over every loaded
+        element sample (``Fz > 0``) of the
         first family's held-out set; ``families``: the same per family, and
         ``worst_family``: per model and axis, the family with the largest RMSE.
     """
@@ -83,17 +89,18 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                            height=integer(height, "height", minimum=2))
     set_dir = cache_dir() / "sets"
 
-    def get(given, n, s, tag, n_spp, mode, design=None):
+    def get(given, n, s, tag, n_spp, mode, design=None, keep_frames=False):
         if given is not None:
             return CalibrationSet(given)
-        path = set_dir / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}-{mode}.zarr"
+        # held-out sets keep their frames: the standard errors come from their pixels
+        path = set_dir / f"{tag}-{width}x{height}-f{n}-spp{n_spp}-seed{s}-{mode}{'-frames' * keep_frames}.zarr"
         print(f"optitact: bench accuracy: {tag} set {path}", file=sys.stderr)
         if path.exists():
             cached = CalibrationSet(path)
             if cached.complete:  # made earlier (possibly by an older version): use as is
                 return cached
         return generate(path, frames=n, camera=camera, spp=n_spp, seed=s, variant=variant, render_mode=mode,
-                        design=design)
+                        design=design, keep_frames=keep_frames)
 
     test_spp = spp if test_spp is None else integer(test_spp, "test_spp", minimum=1)
     families = tuple(families)
@@ -107,7 +114,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     for fam in families:
         k = FAMILIES.index(fam)
         sets[fam] = get(test_set, test_frames, seed + 1000 + 100 * k, "test" if k == 0 else f"test-{fam}",
-                        test_spp, test_render_mode, Design(pattern=fam))
+                        test_spp, test_render_mode, Design(pattern=fam), keep_frames=True)
         if sets[fam].attrs["seed"] == cs.attrs["seed"]:
             raise InputError("the held-out set must have another seed than the calibration set")
     ts = sets[families[0]]
@@ -136,12 +143,17 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         f_truth, f_read = fset.forces(), fset.readings()
         out["families"][fam] = {"set": {"path": str(fset.path), "frames": int(fset.done.sum()),
                                         "seed": fset.attrs["seed"]}, "models": {}}
+        errors = _reading_errors(fset, f_read)
         for model, cal in cals.items():
             est, clamped = cal.forces(f_read)
             if fam == families[0]:
                 estimates[model] = est
-            out["families"][fam]["models"][model] = _scores(est, f_truth, clamped, f_read, fs, ring,
-                                                            contact_min_n)
+            scores = _scores(est, f_truth, clamped, f_read, fs, ring, contact_min_n)
+            if errors is not None:
+                cover = coverage(est, f_truth, cal.stderr(f_read, errors), where=f_truth[..., 2] > 0)
+                scores["coverage_90"] = {ax: round(float(c), 4) for ax, c in zip(("fx", "fy", "fz"), cover,
+                                                                                 strict=True)}
+            out["families"][fam]["models"][model] = scores
     out["models"] = out["families"][families[0]]["models"]
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
                                             for fam in families), key=lambda kv: kv[1])
@@ -153,6 +165,18 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
             plot_errors(truth, estimates, plot)
         out["plot"] = str(plot)
     return out
+
+
+def _reading_errors(fset, readings):
+    """The readings' covariance from the set's stored frames and CCD, or None for a set without frames."""
+    from optitact.pipeline import Pipeline
+    from optitact.uncertainty import PixelNoise, reading_errors
+
+    if not fset.attrs.get("keep_frames") or "frames" not in fset._group:
+        print(f"optitact: bench accuracy: {fset.path} holds no frames; no coverage_90", file=sys.stderr)
+        return None
+    pipe = Pipeline(fset.sensor, fset.camera, baseline=fset.array("baseline"), **fset.attrs.get("pipeline", {}))
+    return reading_errors(pipe, fset.array("frames")[fset.done], PixelNoise.from_ccd(fset.ccd), readings)
 
 
 def _scores(est, truth, clamped, readings, fs, ring, contact_min_n) -> dict:

@@ -1,0 +1,290 @@
+r"""Standard errors of the readings: each element's G and u from the camera's noise model.
+
+The pipeline reads an element as sums over its lit pixels (see
+:class:`optitact.Pipeline`, *Notes*): ``G = sum a v`` and ``u = M / W`` with
+``M = sum a (x, y) (v - t)``, ``W = sum a (v - t)``. A pixel's value ``v``
+(frame minus baseline) has the variance
+
+.. math::
+
+    \sigma_p^2 = \sigma_{r,p}^2 + g\,\max(v_p, 0),
+
+read (and baseline) noise plus shot noise: ``g`` is the conversion gain in
+grey levels per electron (:attr:`PixelNoise.dn_per_electron`; for the CCD
+model ``CCD.dn_per_electron``, for a real camera stated or estimated with
+:meth:`PixelNoise.estimate`), and ``sigma_r`` the pipeline's own noise
+floor, the one its threshold is ``k`` times (``entry_threshold / k``: the
+per-pixel ``noise_map`` of a multi-frame baseline, else ``noise_sigma``).
+Pixels are independent, so to first order (the delta method)
+
+.. math::
+
+    \mathrm{var}\,G = \sum a^2 \sigma_p^2, \quad
+    \mathrm{cov}(u_i, u_j) = \sum \frac{(a x_i - u_i a)(a x_j - u_j a)}{W^2}\sigma_p^2, \quad
+    \mathrm{cov}(G, u_i) = \sum \frac{a (a x_i - u_i a)}{W} \sigma_p^2,
+
+summed over the lit pixels of the element, with the measured ``v`` standing
+for its mean. This is the same linearisation the noise sweep
+(:mod:`optitact.studies.noise_sweep`) checks against the Cramér–Rao bound;
+what it leaves out is the threshold itself: a pixel whose mean lies near the
+threshold is lit in some frames and not in others, which adds to var G (a
+jump of ``t`` per crossing) and biases G low (the clipped tails). Both are
+small for the compact spots of loaded elements.
+
+Here rather than in :mod:`optitact.calib`: the errors belong to the frames
+and the pipeline (a user without a calibration gets them too), and
+:meth:`optitact.calib.Calibration.stderr` propagates them to forces. The
+per-frame path (:meth:`optitact.Pipeline.process`) is untouched: this is a
+separate NumPy pass over the lit pixels, run only when errors are asked for.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import positive
+from .errors import InputError, ShapeError
+from .steps import check_frames
+
+__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "reading_errors"]
+
+#: Half-width of the two-sided 90 % interval of a normal error, in standard errors.
+Z90 = 1.6448536269514722
+
+
+@dataclass(frozen=True)
+class PixelNoise:
+    """The camera's noise per pixel: conversion gain (shot noise), and optionally the read noise.
+
+    Parameters
+    ----------
+    dn_per_electron : float
+        Conversion gain ``g`` of the frames, grey levels per photo-electron
+        (>= 0; 0: no shot noise). The CCD model's is
+        ``CCD.dn_per_electron`` (:meth:`from_ccd`); for a real camera it is
+        on its data sheet (as electrons per DN: take the inverse, scaled to
+        the bit depth of the frames), or :meth:`estimate` measures it.
+    read_sigma : float, optional
+        Noise (grey levels of the frames, rms) of ``frame - baseline`` in
+        the dark. Default: the pipeline's own (its threshold over ``k``),
+        which is what a pipeline made by :meth:`optitact.Pipeline.from_noload`
+        measured.
+
+    Examples
+    --------
+    >>> from optitact.ccd import CCD
+    >>> round(PixelNoise.from_ccd(CCD()).dn_per_electron, 5)
+    0.01255
+    """
+
+    dn_per_electron: float
+    read_sigma: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "dn_per_electron",
+                           positive(self.dn_per_electron, "dn_per_electron", allow_zero=True))
+        if self.read_sigma is not None:
+            object.__setattr__(self, "read_sigma", positive(self.read_sigma, "read_sigma", allow_zero=True))
+
+    @classmethod
+    def from_ccd(cls, ccd) -> PixelNoise:
+        """The conversion gain of a :class:`optitact.ccd.CCD` (read noise: the pipeline's)."""
+        return cls(float(ccd.dn_per_electron))
+
+    @classmethod
+    def estimate(cls, noload, pressed, *, min_signal: float = 20.0) -> PixelNoise:
+        r"""Measure the conversion gain from a no-load stack and a stack under one constant load.
+
+        Parameters
+        ----------
+        noload, pressed : (T, H, W) array_like
+            Frames of the same camera settings, ``T >= 2`` each: unloaded,
+            and pressed by a load that does not change between frames.
+        min_signal : float
+            Only pixels whose mean signal (pressed minus unloaded mean) is
+            above this (grey levels) enter the fit (default 20: below a few
+            grey levels of noise, rounding bends the photon-transfer line).
+
+        Returns
+        -------
+        PixelNoise
+            ``dn_per_electron`` the slope ``g`` of the photon-transfer line
+            ``var_pressed - var_noload = c + g (mean_pressed - mean_noload)``
+            over the lit pixels (least squares; the intercept ``c`` takes
+            the rounding noise, which a dark pixel whose noise is well below
+            one grey level does not show), and
+            ``read_sigma`` the no-load stack's rms temporal noise times
+            ``sqrt(1 + 1/T)`` (the noise of a frame minus the stack's mean).
+
+        Raises
+        ------
+        ShapeError
+            The stacks are not (T, H, W) with T >= 2, or of different frame shapes.
+        InputError
+            Fewer than 10 pixels above ``min_signal``.
+
+        Notes
+        -----
+        Shot noise has the variance of the electron count, so in grey levels
+        ``var = g^2 N_e = g (mean signal)``; read noise and quantisation
+        add (nearly) the same variance with and without load and go into
+        the intercept.
+        """
+        a, b = (np.asarray(s, dtype=np.float64) for s in (noload, pressed))
+        for name, s in (("noload", a), ("pressed", b)):
+            if s.ndim != 3 or s.shape[0] < 2:
+                raise ShapeError(f"{name} must be a stack (T, H, W) with T >= 2, got shape {s.shape}")
+        if a.shape[1:] != b.shape[1:]:
+            raise ShapeError(f"noload and pressed frames must have the same shape, got {a.shape[1:]} and "
+                             f"{b.shape[1:]}")
+        signal = b.mean(axis=0) - a.mean(axis=0)
+        excess = b.var(axis=0, ddof=1) - a.var(axis=0, ddof=1)
+        lit = signal > positive(min_signal, "min_signal", allow_zero=True)
+        if np.count_nonzero(lit) < 10:
+            raise InputError(f"pressed: only {np.count_nonzero(lit)} pixels have a mean signal above "
+                             f"min_signal={min_signal:g} grey levels; press harder or lower min_signal")
+        g = max(float(np.polyfit(signal[lit], excess[lit], 1)[0]), 0.0)
+        read = math.sqrt(float(a.var(axis=0, ddof=1).mean()) * (1.0 + 1.0 / a.shape[0]))
+        return cls(g, read)
+
+
+@dataclass(frozen=True)
+class ReadingErrors:
+    """Covariance of each element's ``(G, ux, uy)`` reading, from :func:`reading_errors`.
+
+    Attributes
+    ----------
+    cov : (E, 3, 3) or (T, E, 3, 3) ndarray
+        Covariance of ``(G, ux, uy)`` (grey level x mm^2 and mm, as the
+        readings); zero where there is no contact.
+    """
+
+    cov: np.ndarray
+
+    @property
+    def G_se(self) -> np.ndarray:
+        """Standard error of G, (E,) or (T, E)."""
+        return np.sqrt(self.cov[..., 0, 0])
+
+    @property
+    def u_se(self) -> np.ndarray:
+        """Standard errors of ``(ux, uy)`` (mm), (E, 2) or (T, E, 2)."""
+        return np.sqrt(np.stack([self.cov[..., 1, 1], self.cov[..., 2, 2]], axis=-1))
+
+
+def reading_errors(pipeline, frames, noise: PixelNoise, readings=None) -> ReadingErrors:
+    """Covariance of the readings of ``frames`` from the noise model (see the module docstring).
+
+    Parameters
+    ----------
+    pipeline : Pipeline
+        The pipeline that reads (or read) the frames (filter ``"none"``).
+    frames : (H, W) or (T, H, W) array_like
+    noise : PixelNoise
+    readings : Readings, optional
+        ``pipeline.process(frames)`` if already made (else it is computed).
+
+    Returns
+    -------
+    ReadingErrors
+        ``(E, 3, 3)`` for a frame, ``(T, E, 3, 3)`` for a stack.
+
+    Raises
+    ------
+    InputError
+        A pipeline with a denoising filter (its pixels' noise is correlated;
+        not modelled).
+    TypeError
+        ``noise`` is not a :class:`PixelNoise`.
+    """
+    if not isinstance(noise, PixelNoise):
+        raise TypeError(f"noise must be a PixelNoise, got {type(noise).__name__}")
+    if pipeline.filter != "none":
+        raise InputError(f"reading errors need a pipeline without a filter (its pixels' noise is "
+                         f"independent), got filter={pipeline.filter!r}")
+    stack, single = check_frames(frames, pipeline.camera)
+    pipeline._check_scale(stack, "frames")
+    if readings is None:
+        readings = pipeline.process(stack)
+    fold = pipeline.region_weights
+    n_ent, n_el, t_n = len(fold.pixel), len(fold.n_pixels), stack.shape[0]
+    level = pipeline._level(stack.dtype)[0]
+    g = np.take(stack.reshape(t_n, -1), fold.pixel, axis=1)
+    idx = np.flatnonzero(g > level)
+    e = idx % n_ent
+    v = g.reshape(-1)[idx] - np.take(pipeline.entry_baseline, e)
+    thr = np.take(pipeline.entry_threshold, e)
+    if stack.dtype.kind == "f":
+        keep = v > thr
+        idx, e, v, thr = idx[keep], e[keep], v[keep], thr[keep]
+    if noise.read_sigma is not None:
+        read2 = noise.read_sigma ** 2
+    elif pipeline.k > 0:
+        read2 = (thr / pipeline.k) ** 2
+    else:
+        read2 = (pipeline.noise_sigma * pipeline.dn_ratio) ** 2
+    var = read2 + noise.dn_per_electron * np.maximum(v, 0.0)
+    key = fold.label[e] + (idx // n_ent) * n_el
+    size = t_n * n_el
+    area, wx, wy = (w[e] for w in fold.weights)
+    above = np.maximum(v - thr, 0.0)
+    W = np.bincount(key, area * above, minlength=size)
+    ux = np.bincount(key, wx * above, minlength=size) / np.where(W > 0, W, 1.0)
+    uy = np.bincount(key, wy * above, minlength=size) / np.where(W > 0, W, 1.0)
+    dG = area
+    inv_w = 1.0 / np.where(W > 0, W, 1.0)[key]
+    dux = (wx - ux[key] * area) * inv_w
+    duy = (wy - uy[key] * area) * inv_w
+    parts = (dG, dux, duy)
+    cov = np.zeros((size, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            c = np.bincount(key, parts[i] * parts[j] * var, minlength=size)
+            cov[:, i, j] = cov[:, j, i] = c
+    cov = cov.reshape(t_n, n_el, 3, 3)
+    r = pipeline.dn_ratio
+    cov[..., 0, :] /= r
+    cov[..., :, 0] /= r
+    contact = np.asarray(readings.contact).reshape(t_n, n_el)
+    cov[~contact] = 0.0
+    return ReadingErrors(cov[0] if single else cov)
+
+
+def coverage(estimates, truth, stderr, *, z: float = Z90, where=None) -> np.ndarray:
+    """Fraction of true values inside the interval ``estimate +- z stderr``, per axis.
+
+    Parameters
+    ----------
+    estimates, truth, stderr : (..., 3) array_like
+        Estimated forces, true forces and the estimates' standard errors (N).
+    z : float
+        Half-width in standard errors (default :data:`Z90`: the 90 % interval).
+    where : bool array_like of the leading shape, optional
+        Samples to count (e.g. the loaded elements); default all.
+
+    Returns
+    -------
+    (3,) ndarray
+        Per axis; NaN when no sample is counted. For honest standard errors
+        of normal errors it is close to 0.9 (binomial spread ``sqrt(0.09 / n)``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(1)
+    >>> se = np.full((20000, 3), 0.01)
+    >>> est = rng.normal(0.0, se)
+    >>> [round(float(c), 2) for c in coverage(est, np.zeros_like(est), se)]
+    [0.9, 0.9, 0.9]
+    """
+    est, tru, se = (np.asarray(a, dtype=np.float64) for a in (estimates, truth, stderr))
+    if not est.shape == tru.shape == se.shape or est.shape[-1:] != (3,):
+        raise ShapeError(f"estimates, truth and stderr must have the same shape (..., 3), got {est.shape}, "
+                         f"{tru.shape} and {se.shape}")
+    inside = np.abs(est - tru) <= positive(z, "z") * se
+    mask = np.ones(est.shape[:-1], bool) if where is None else np.asarray(where, bool)
+    n = int(mask.sum())
+    return inside[mask].mean(axis=0) if n else np.full(3, np.nan)
