@@ -401,14 +401,14 @@ def test_fitted_offsets_make_a_sensor_that_reprojects_its_cones_where_they_are(s
 
 @pytest.fixture(scope="module")
 def gain_frames():
-    """Two-stage frames (160x120 default camera, the 12 % coarse table of tests/test_twostage.py) of a sensor
-    with known gains and of the designed one, the 22 elements of PRESSES pressed at 0.6 N each."""
+    """Two-stage frames (160x120 default camera, the shipped emission table: it serves every camera) of a
+    sensor with known gains and of the designed one, the 22 elements of PRESSES pressed at 0.6 N each."""
     from optitact.ccd import CCD
     from optitact.render import render
-    from optitact.render.twostage import emission_table
+    from optitact.render.twostage import shipped_table
 
     cam = optitact.FisheyeCamera(width=160, height=120)
-    table = emission_table(SENSOR, cam, thetas_deg=tuple(range(0, 78, 4)), radii_mm=(0.15, 0.3, 0.5), spp=512)
+    table = shipped_table(SENSOR)
     gains = np.random.default_rng(5).uniform(0.85, 1.15, 41)
     ccd = CCD()
     out = {"gains": gains}
