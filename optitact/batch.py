@@ -86,6 +86,9 @@ class ProcessedFrames:
     centre_of_pressure : (n_frames, 3) ndarray or None
         Likewise: per frame, the centre of pressure on the outer surface (mm;
         NaN where no element carries a normal force).
+    stderr : (n_frames, E, 3) ndarray or None
+        With ``noise``: the standard errors of the element-local forces (N,
+        :meth:`optitact.calib.Calibration.stderr`).
     """
 
     n_frames: int
@@ -97,6 +100,7 @@ class ProcessedFrames:
     last_readings: Readings
     seconds: float
     global_forces: np.ndarray | None = None
+    stderr: np.ndarray | None = None
     resultant: np.ndarray | None = None
     total_normal: np.ndarray | None = None
     centre_of_pressure: np.ndarray | None = None
@@ -109,8 +113,8 @@ class _Table:
         self.with_forces, self.sensor, self.frames = forces, sensor, 0
         self.parts: list = []
 
-    def write(self, readings, sources, forces=None, clamped=None) -> None:
-        self.parts.append((readings, forces, clamped))
+    def write(self, readings, sources, forces=None, clamped=None, stderr=None) -> None:
+        self.parts.append((readings, forces, clamped, stderr))
         self.frames += len(sources)
 
     def __enter__(self) -> _Table:
@@ -128,7 +132,9 @@ class _Table:
 
         forces = np.concatenate([p[1] for p in self.parts])
         tot = frame_totals(self.sensor, forces, r.contact)
+        se = np.concatenate([p[3] for p in self.parts]) if self.parts[0][3] is not None else None
         return {"readings": r, "forces": forces, "clamped": np.concatenate([p[2] for p in self.parts]),
+                "stderr": se,
                 "global_forces": tot["global"], "resultant": tot["resultant"],
                 "total_normal": tot["total_normal"], "centre_of_pressure": tot["centre_of_pressure"]}
 
@@ -176,27 +182,35 @@ def _batches(pairs: Iterable, shape: tuple[int, int], batch: int):
         yield [n for n, _ in held], np.stack([f for _, f in held])
 
 
-def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray) -> tuple:
-    """``(names, readings, forces, clamped, last frame)`` of one batch (forces None without ``cal``)."""
+def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray, noise=None) -> tuple:
+    """``(names, readings, forces, clamped, last frame, stderr)`` of one batch.
+
+    Forces are None without ``cal``, stderr None without ``noise``.
+    """
     try:
         r = pipe.process(stack)
     except (OptitactError, TypeError, ValueError):
         _name_the_frame(pipe, names, stack)
         raise
     forces, clamped = cal.forces(r) if cal is not None else (None, None)
-    return names, r, forces, clamped, stack[-1]
+    se = None
+    if noise is not None:
+        from .uncertainty import reading_errors
+
+        se = cal.stderr(r, None if noise == "model" else reading_errors(pipe, stack, noise, r))
+    return names, r, forces, clamped, stack[-1], se
 
 
-def _read_file(pipe: Pipeline, cal, path, batch: int) -> list:
+def _read_file(pipe: Pipeline, cal, path, batch: int, noise=None) -> list:
     """Every batch of one file: a task of :func:`process_files` on a cluster."""
-    return [_read(pipe, cal, names, stack)
+    return [_read(pipe, cal, names, stack, noise)
             for names, stack in _batches(iter_frames([path]), pipe.camera.shape, batch)]
 
 
 def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | None = None,
                   calibration=None, baseline=None, baseline_frames: int = 1,
                   out: str | os.PathLike | None = None, batch: int = 32, scheduler=None,
-                  progress: bool = False) -> ProcessedFrames:
+                  progress: bool = False, noise=None) -> ProcessedFrames:
     """Readings (and forces) of every frame in image files, folders, ``.npy`` stacks or videos.
 
     Parameters
@@ -237,6 +251,13 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         extra); the table is the same as a local run's.
     progress : bool
         Show a progress bar on stderr.
+    noise : PixelNoise or "model", optional
+        With a calibration: also the standard error of every force
+        (:meth:`optitact.calib.Calibration.stderr`), written as ``fx_se,
+        fy_se, fz_se`` after the force columns: a
+        :class:`~optitact.uncertainty.PixelNoise` propagates each frame's
+        shot and read noise and adds the calibration's model error;
+        ``"model"`` gives the model error alone.
 
     Returns
     -------
@@ -272,9 +293,16 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
     elif pipe.baseline is not None:
         n_base = 0
     with_forces = calibration is not None
+    if noise is not None:
+        from .uncertainty import PixelNoise
+
+        if not with_forces:
+            raise InputError("noise gives the forces' standard errors: it needs a calibration")
+        if not (isinstance(noise, PixelNoise) or (isinstance(noise, str) and noise == "model")):
+            raise TypeError(f"noise must be a PixelNoise or 'model', got {type(noise).__name__}")
     sensor = calibration.sensor if with_forces else None
-    sink = ReadingsWriter(out, forces=with_forces, sensor=sensor) if out is not None \
-        else _Table(forces=with_forces, sensor=sensor)
+    sink = (ReadingsWriter(out, forces=with_forces, sensor=sensor, stderr=noise is not None) if out is not None
+            else _Table(forces=with_forces, sensor=sensor))
     names: list[str] = []
     last = None
     n_frames = count_frames(files)
@@ -300,12 +328,12 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
                     f"frame as the baseline (--baseline), record more frames after the no-load ones, or "
                     f"set baseline_frames=0 (--baseline-frames 0) to subtract nothing")
             pairs = itertools.chain([following], pairs)
-        for part in _results(pipe, calibration, files, head, pairs, batch, scheduler):
-            part_names, r, forces, clamped, _ = part
+        for part in _results(pipe, calibration, files, head, pairs, batch, scheduler, noise):
+            part_names, r, forces, clamped, _, se = part
             if calibration is None:
                 sink.write(r, part_names)
             else:
-                sink.write(r, part_names, forces, clamped)
+                sink.write(r, part_names, forces, clamped, se)
             names += part_names
             last = part
             bar.update(len(part_names))
@@ -316,19 +344,19 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
                            seconds=time.perf_counter() - t0, **table)
 
 
-def _results(pipe, cal, files, head, rest, batch, scheduler):
-    """Batches ``(names, readings, forces, clamped)`` in frame order, here or on a cluster."""
+def _results(pipe, cal, files, head, rest, batch, scheduler, noise=None):
+    """Batches ``(names, readings, forces, clamped, last, stderr)`` in frame order, here or on a cluster."""
     if scheduler is None:
         if head:
-            yield _read(pipe, cal, [n for n, _ in head], np.stack([f for _, f in head]))
+            yield _read(pipe, cal, [n for n, _ in head], np.stack([f for _, f in head]), noise)
         for names, stack in _batches(rest, pipe.camera.shape, batch):
-            yield _read(pipe, cal, names, stack)
+            yield _read(pipe, cal, names, stack, noise)
         return
     from ._cluster import dask_client
 
     with dask_client(scheduler, purpose="batch processing on a cluster") as client:
         [p] = client.scatter([pipe], broadcast=True, hash=False)
-        futures = [client.submit(_read_file, p, cal, f, batch, retries=3, pure=False) for f in files]
+        futures = [client.submit(_read_file, p, cal, f, batch, noise, retries=3, pure=False) for f in files]
         for fut in futures:  # in file order: the table is the same as a local run's
             yield from fut.result()
 

@@ -348,3 +348,28 @@ def test_the_table_gets_standard_error_columns_after_the_others(tmp_path):
     with pytest.raises(ValueError, match="pass stderr"), \
             ReadingsWriter(tmp_path / "y.csv", forces=True, sensor=cal.sensor, stderr=True) as w:
         w.write(r, ["a"], forces, clamped)
+
+
+def test_process_writes_standard_errors_that_grow_with_the_noise(tmp_path):
+    """``noise`` (and ``process --stderr``): fx_se, fy_se, fz_se after the other columns; the model error
+    alone where nothing is in contact, and more for frames read with a noisier camera (a larger gain)."""
+    from optitact.uncertainty import PixelNoise
+
+    np.save(tmp_path / "rec.npy", _loaded_frames(6, seed=3))
+    cal = _calibration()
+    quiet = process_files([tmp_path / "rec.npy"], calibration=cal, noise=PixelNoise(0.001), batch=4)
+    loud = process_files([tmp_path / "rec.npy"], calibration=cal, noise=PixelNoise(0.1), batch=4)
+    model = process_files([tmp_path / "rec.npy"], calibration=cal, noise="model", batch=4)
+    contact = quiet.readings.contact
+    assert contact.any()
+    np.testing.assert_allclose(model.stderr[~contact], np.broadcast_to(cal.model_error(), contact.shape + (3,))
+                               [~contact], rtol=1e-12)
+    assert np.all(loud.stderr[contact] > quiet.stderr[contact])
+    assert np.all(quiet.stderr[contact] >= model.stderr[contact])
+    process_files([tmp_path / "rec.npy"], calibration=cal, noise="model", out=tmp_path / "t.csv", batch=4)
+    header = (tmp_path / "t.csv").read_text().splitlines()[0].split(",")
+    assert header[-3:] == ["fx_se", "fy_se", "fz_se"]
+    with pytest.raises(ValueError, match="needs a calibration"):
+        process_files([tmp_path / "rec.npy"], pipeline=cal.pipeline(), noise="model")
+    with pytest.raises(TypeError, match="PixelNoise or 'model'"):
+        process_files([tmp_path / "rec.npy"], calibration=cal, noise=0.01)

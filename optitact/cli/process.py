@@ -79,6 +79,14 @@ def add_parsers(sub) -> None:
                            "is refused")
     proc.add_argument("--plot", type=Path, default=None, metavar="PLOT.png",
                       help="with --calibration: save a force-field plot of the last frame")
+    proc.add_argument("--stderr", action="store_true",
+                      help="with --calibration: also write each force's standard error (fx_se, fy_se, fz_se, "
+                           "N): the calibration's own model error, plus each frame's shot and read noise "
+                           "propagated through the calibration when --dn-per-electron is given")
+    proc.add_argument("--dn-per-electron", type=float, default=None, metavar="G",
+                      help="with --stderr: the camera's conversion gain (grey levels per electron; "
+                           "optitact.uncertainty.PixelNoise.estimate measures it from a no-load and a "
+                           "pressed stack; 0.0128 for the synthetic 8-bit CCD)")
     proc.add_argument("--scheduler", default=None, metavar="ADDRESS",
                       help="process the files on a Dask distributed cluster, one task per file "
                            "(scheduler address); the baseline comes from --baseline or the first "
@@ -197,6 +205,23 @@ def _baseline_note(args, baseline) -> tuple[int, str]:
                     f"baseline = mean of the first {n_base} frame(s)" if n_base else "no baseline")
 
 
+def _noise(args, cal):
+    """What ``--stderr``/``--dn-per-electron`` ask for: None, ``"model"`` or a PixelNoise."""
+    if args.dn_per_electron is not None and not args.stderr:
+        raise InputError("--dn-per-electron is for --stderr")
+    if not args.stderr:
+        return None
+    if cal is None:
+        raise InputError("--stderr gives the forces' standard errors: it needs --calibration")
+    if args.dn_per_electron is None:
+        print("optitact: --stderr without --dn-per-electron: the calibration's model error only (give the "
+              "camera's conversion gain to add each frame's noise)", file=sys.stderr)
+        return "model"
+    from optitact.uncertainty import PixelNoise
+
+    return PixelNoise(args.dn_per_electron)
+
+
 def run_process(args) -> int:
     """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
     from optitact.batch import process_files
@@ -206,6 +231,9 @@ def run_process(args) -> int:
     _check_out(args.out, "--out")
     _check_out(args.plot, "--plot")
     if args.camera is not None:
+        if args.stderr or args.dn_per_electron is not None:
+            raise InputError("--stderr and --dn-per-electron work on recorded frames; a --camera stream "
+                             "writes forces without standard errors")
         return _run_live(args)
     if args.policy is not None or args.view or args.max_frames is not None or args.seconds is not None:
         raise InputError("--policy, --view, --max-frames and --seconds are options of a --camera stream")
@@ -232,7 +260,8 @@ def run_process(args) -> int:
     n_base, how = _baseline_note(args, baseline)
     print(f"optitact: processing {camera.width}x{camera.height} frames, {how}", file=sys.stderr)
     done = process_files(files, pipeline=pipe, calibration=cal, baseline=baseline, baseline_frames=n_base,
-                         out=args.out, batch=args.batch, scheduler=args.scheduler, progress=True)
+                         out=args.out, batch=args.batch, scheduler=args.scheduler, progress=True,
+                         noise=_noise(args, cal))
     if args.plot is not None:
         field = cal.apply(done.last_readings)
         field.save_plot(args.plot, done.last_frame, camera, title="estimated forces (last frame)")
