@@ -12,10 +12,12 @@ From scratch every element needs at least ``MIN_PRESSES_SCRATCH`` presses
 (the cubic ``g(G)``, its brightness gradient and the shear curve of
 :meth:`Calibration.fit <optitact.calib.Calibration.fit>`). Starting from a
 calibration, each element with at least ``MIN_PRESSES_REFINE`` presses gets
-two factors fitted by least squares over its presses: a gain ``k`` on G
-(``g_scale`` and ``g_max`` times ``k``: ``Fz = g_start(G / k, u)``; real
-elements differ in brightness) and a scale ``c`` on the shear curve (``F_t =
-c f_start``; fitted where a press has shear, else 1). Elements with fewer
+fitted by least squares over its presses: a gain ``k`` on G (``g_scale`` and
+``g_max`` times ``k``: ``Fz = g_start(G / k, u)``; real elements differ in
+brightness), a scale ``c`` on the shear curve (``F_t = c f_start``; fitted
+where a press has shear, else 1) and, for the coupled model, a shift of its
+zero-shear centroid (``u0``; the element's own brightness gradient across
+its cones, up to ``MAX_CENTROID_SHIFT_MM``). Elements with fewer
 presses keep the starting curves (a warning names them). The fitted range
 grows to the largest G and shift seen in the presses. A start made for
 another sensor or camera is transferred to the presses' first
@@ -48,6 +50,8 @@ __all__ = ["MIN_PRESSES_REFINE", "MIN_PRESSES_SCRATCH", "fit_from_frames", "fit_
 MIN_PRESSES_SCRATCH = 8
 #: Presses per element a refinement of a starting calibration needs (else the element keeps its curves).
 MIN_PRESSES_REFINE = 2
+#: Largest shift (mm) of an element's zero-shear centroid a refinement accepts.
+MAX_CENTROID_SHIFT_MM = 0.5
 
 
 def starting_calibration(start) -> Calibration | None:
@@ -208,11 +212,15 @@ def fit_presses(readings: Readings, forces, *, pressed=None, sensor: DomeSensor,
                    provenance=prov)
 
 
-def _refined(start: Calibration, logk, logc, g_top, u_top, **fields) -> Calibration:
+def _refined(start: Calibration, logk, logc, du, g_top, u_top, **fields) -> Calibration:
     k, c = np.exp(logk), np.exp(logc)
     f = start.f / c[:, None] if start.model == "coupled" else start.f * c[:, None]
+    u0 = start.u0
+    if start.model == "coupled" and np.any(du):
+        u0 = np.zeros((len(k), 2, 2)) if u0 is None else np.array(u0, dtype=np.float64)
+        u0[:, 0, :] += du
     return replace(start, g_scale=start.g_scale * k, g_max=np.maximum(start.g_max * k, g_top),
-                   u_max=np.maximum(start.u_max, u_top), f=f, **fields)
+                   u_max=np.maximum(start.u_max, u_top), f=f, u0=u0, **fields)
 
 
 def _refine(start, readings, f, usable, n_press, *, sensor, camera, intensity, provenance) -> Calibration:
@@ -229,13 +237,17 @@ def _refine(start, readings, f, usable, n_press, *, sensor, camera, intensity, p
     u_top = np.where(fit_el, np.max(np.where(usable, np.hypot(*np.moveaxis(readings.u, -1, 0)), 0.0), axis=0),
                      0.0)
     k_ids, c_ids = np.flatnonzero(fit_el), np.flatnonzero(shear_el)
-    n_k = k_ids.size
-    logk, logc = np.zeros(n_el), np.zeros(n_el)
+    # coupled: the zero-shear centroid moves with the element's own brightness gradient (its rim light),
+    # so each element pressed at least MIN_PRESSES_REFINE times gets a constant shift of it too
+    d_ids = k_ids if start.model == "coupled" else np.zeros(0, np.int64)
+    n_k, n_c, n_d = k_ids.size, c_ids.size, 2 * d_ids.size
+    logk, logc, du = np.zeros(n_el), np.zeros(n_el), np.zeros((n_el, 2))
     if n_k:
         def unpack(x):
-            lk, lc = np.zeros(n_el), np.zeros(n_el)
-            lk[k_ids], lc[c_ids] = x[:n_k], x[n_k:]
-            return lk, lc
+            lk, lc, d = np.zeros(n_el), np.zeros(n_el), np.zeros((n_el, 2))
+            lk[k_ids], lc[c_ids] = x[:n_k], x[n_k:n_k + n_c]
+            d[d_ids] = x[n_k + n_c:].reshape(-1, 2)
+            return lk, lc, d
 
         def resid(x):
             est, _ = _refined(start, *unpack(x), g_top, u_top).forces(readings)
@@ -244,20 +256,27 @@ def _refine(start, readings, f, usable, n_press, *, sensor, camera, intensity, p
         col_k = np.full(n_el, -1)
         col_k[k_ids] = np.arange(n_k)
         col_c = np.full(n_el, -1)
-        col_c[c_ids] = n_k + np.arange(c_ids.size)
+        col_c[c_ids] = n_k + np.arange(n_c)
+        col_d = np.full(n_el, -1)
+        col_d[d_ids] = n_k + n_c + 2 * np.arange(d_ids.size)
         rows = np.arange(3 * t_idx.size)
         el = np.repeat(e_idx, 3)
-        rr = np.r_[rows, rows[col_c[el] >= 0]]
-        cc = np.r_[col_k[el], col_c[el][col_c[el] >= 0]]
-        sparsity = coo_matrix((np.ones(rr.size), (rr, cc)), shape=(rows.size, n_k + c_ids.size))
-        sol = least_squares(resid, np.zeros(n_k + c_ids.size), jac_sparsity=sparsity, method="trf",
-                            bounds=(np.log(0.2), np.log(5.0)), x_scale=0.1)
-        logk, logc = unpack(sol.x)
+        # a shift moves Fx and Fy (and Fz through the brightness gradient): every row of its element
+        rr = np.r_[rows, rows[col_c[el] >= 0], np.repeat(rows[col_d[el] >= 0], 2)]
+        dcols = col_d[el][col_d[el] >= 0]
+        cc = np.r_[col_k[el], col_c[el][col_c[el] >= 0], np.stack([dcols, dcols + 1], 1).ravel()]
+        n_x = n_k + n_c + n_d
+        sparsity = coo_matrix((np.ones(rr.size), (rr, cc)), shape=(rows.size, n_x))
+        lo = np.r_[np.full(n_k + n_c, np.log(0.2)), np.full(n_d, -MAX_CENTROID_SHIFT_MM)]
+        hi = np.r_[np.full(n_k + n_c, np.log(5.0)), np.full(n_d, MAX_CENTROID_SHIFT_MM)]
+        sol = least_squares(resid, np.zeros(n_x), jac_sparsity=sparsity, method="trf", bounds=(lo, hi),
+                            x_scale=np.r_[np.full(n_k + n_c, 0.1), np.full(n_d, 0.01)])
+        logk, logc, du = unpack(sol.x)
     kept = np.flatnonzero(~fit_el)
     if kept.size:
         warnings.warn(f"{_elements(kept, n_press)} presses: fewer than the {MIN_PRESSES_REFINE} a refinement "
                       f"needs, so these keep the starting calibration's curves", OptitactWarning, stacklevel=3)
-    cal = _refined(start, logk, logc, g_top, u_top, sensor=sensor, camera=camera)
+    cal = _refined(start, logk, logc, du, g_top, u_top, sensor=sensor, camera=camera)
     est, _ = cal.forces(readings)
     res = {k: np.array(start.residuals.get(k, np.zeros(n_el)), dtype=float).copy() for k in ("fx", "fy", "fz")}
     res["n"] = np.array(start.residuals.get("n", np.zeros(n_el)), dtype=int).copy()
@@ -269,6 +288,7 @@ def _refine(start, readings, f, usable, n_press, *, sensor, camera, intensity, p
     prov = provenance | {"fit": "refined", "start": start.fingerprint,
                          "start_provenance": start.provenance, "refined_elements": k_ids.tolist(),
                          "kept_elements": kept.tolist(), "gain": np.exp(logk).round(6).tolist(),
-                         "shear_scale": np.exp(logc).round(6).tolist()}
+                         "shear_scale": np.exp(logc).round(6).tolist(),
+                         "centroid_shift_mm": du.round(6).tolist()}
     return replace(cal, residuals=res, provenance=prov,
                    intensity=start.intensity if intensity is None else intensity)

@@ -33,7 +33,8 @@ no pose. Then, per stand-in:
    gauge reads 1 % of reading noise), refined from the transferred shipped
    calibration and from scratch;
 4. ``matched``: the floor: the stand-in's own synthetic calibration (its true
-   sensor and camera, a 200-frame design rendered the same way).
+   sensor and camera, a 200-frame ``blend`` design rendered the same way,
+   fitted as the shipped one is: the joint model when it has one).
 
 Each is scored on the same held-out frames (independent loads on every
 element, ``calib.sets.design_forces`` with seeds no other step uses) with
@@ -389,11 +390,13 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
                 out["presses"][kind].append(cal if isinstance(cal, dict) else
                                             {fam: _report(cal, test[fam]["registered"], f)
                                              for fam, f in tests.items()})
-        cal_f = design_forces(matched_frames, n_el, Design(), seed=50_000 + s_seed)
+        cal_f = design_forces(matched_frames, n_el, Design(pattern="blend"), seed=50_000 + s_seed,
+                              sensor=standin.sensor)
         own = _readings(frames, {"matched": pipes["matched"]}, cal_f, 60_000 + s_seed, "matched set",
                         progress)["matched"]
         matched = Calibration.fit(own, cal_f, sensor=standin.sensor, camera=standin.camera,
-                                  pipeline_options=options, model=shipped.model)
+                                  pipeline_options=options, model=shipped.model,
+                                  joint=shipped.crosstalk is not None)
         out["matched"] = {fam: _report(matched, test[fam]["matched"], f) for fam, f in tests.items()}
         force_rows.append(out)
     result = {"setup": {"sensors": sensors, "force_sensors": force_sensors, "size": [w, h], "seed": seed,
