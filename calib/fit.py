@@ -37,6 +37,7 @@ from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
 from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
+from . import propagation
 from .crosstalk import CrossTalk, fit_crosstalk
 from .curves import G_TERMS, MODELS, fit_element, g_design, zero_shear_centroid
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
@@ -443,138 +444,27 @@ class Calibration:
 
     # ------------------------------------------------------------------ uncertainty
     def jacobian(self, readings: Readings) -> np.ndarray:
-        r"""Derivatives of the estimated forces with respect to every element's reading.
-
-        Returns
-        -------
-        (E, 3, E, 3) or (T, E, 3, E, 3) ndarray
-            ``J[..., e, a, j, b] = d F[e, a] / d x[j, b]`` with ``F = (Fx, Fy,
-            Fz)`` (N) and ``x = (G, ux, uy)`` (the readings' units); zero in
-            the rows of elements without contact.
-
-        Notes
-        -----
-        Each element's own block is a central difference of the curves
-        (steps ``1e-4 g_scale`` in G, ``1e-4 u_scale`` in u). With a
-        cross-talk model the forces solve ``Fz = g(G_iso, u)``, ``G_iso = G
-        exp(W Fz)`` (:mod:`optitact.calib.crosstalk`); differentiating that
-        fixed point (the implicit-function theorem) gives, with ``a_e = G_iso,e
-        dg_e/dG_iso`` and ``b_e = dg_e/du``,
-
-        .. math::
-
-            dFz = (I - \mathrm{diag}(a) W_c)^{-1} (\mathrm{diag}(a / G)\,dG + \mathrm{diag}(b)\,du),
-
-        ``W_c`` the coupling to the elements in contact, and the shear
-        follows through ``G_iso``. It is exact to first order at the
-        converged fixed point.
-        """
-        local, g_point = self._local_jacobian(readings)
-        lead, n_el = local.shape[:-3], local.shape[-3]
-        contact = np.asarray(readings.contact, bool)
-        eye = np.eye(n_el)
-        if self.crosstalk is None:
-            out = np.einsum("...eab,ej->...eajb", local, eye)
-        else:
-            w = self.crosstalk.matrix(self.sensor) * contact[..., None, :]
-            G = np.where(contact, readings.G, 1.0)
-            a = local[..., 2, 0] * g_point                                  # (..., E)
-            m = np.linalg.inv(eye - a[..., :, None] * w)                   # (..., E, E)
-            r = np.concatenate([(a / G)[..., None], local[..., 2, 1:]], axis=-1)   # (..., E, 3)
-            dfz = m[..., :, :, None] * r[..., None, :, :]                  # (..., E, E, 3)
-            own = np.zeros(lead + (n_el, n_el, 3))
-            own[..., np.arange(n_el), np.arange(n_el), 0] = 1.0 / G
-            dgiso = g_point[..., :, None, None] * (own + np.einsum("...ek,...kjb->...ejb", w, dfz))
-            out = np.empty(lead + (n_el, 3, n_el, 3))
-            out[..., :2, :, :] = local[..., :2, 0, None, None] * dgiso[..., :, None, :, :]
-            out[..., :2, :, 1:] += np.einsum("...eab,ej->...eajb", local[..., :2, 1:], eye)
-            out[..., 2, :, :] = dfz
-        return np.where(contact[..., None, None, None], out, 0.0)
-
-    def _local_jacobian(self, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
-        """Each element's own curves differentiated at its reading: (..., E, 3, 3), and the G used."""
-        self._check(readings)
-        G, u = np.asarray(readings.G, np.float64), np.asarray(readings.u, np.float64)
-        if self.crosstalk is not None:
-            G = self.crosstalk.solve(self.sensor, G, readings.contact, self._normal_curve(u))
-        out = np.empty(G.shape + (3, 3))
-        h_g, h_u = 1e-4 * self.g_scale, 1e-4 * self.u_scale
-        out[..., 0] = (self._per_element(G + h_g, u)[0] - self._per_element(np.maximum(G - h_g, 0.0), u)[0]) \
-            / (G + h_g - np.maximum(G - h_g, 0.0))[..., None]
-        for k in (0, 1):
-            step = np.zeros(u.shape)
-            step[..., k] = h_u
-            out[..., k + 1] = (self._per_element(G, u + step)[0] - self._per_element(G, u - step)[0]) \
-                / (2.0 * h_u)[..., None]
-        return out, G
+        """d(forces)/d(readings), (..., E, 3, E, 3): see :func:`optitact.calib.propagation.jacobian`."""
+        return propagation.jacobian(self, readings)
 
     def model_error(self) -> np.ndarray:
-        """The calibration's own error per element and axis, (E, 3) N, from its fit residuals.
-
-        The stored RMS fit residuals (``residuals["fx", "fy", "fz"]``) with
-        the degrees of freedom the curves took: ``rms sqrt(n / (n - p))``,
-        ``p`` = 6 parameters for Fz of the coupled model (4 for ohka), 1 per
-        shear axis (two shared by Fx and Fy). They hold the calibration
-        frames' own noise too, so adding them to the noise of a reading
-        counts that noise twice (conservative; on the synthetic sets the
-        noise is a small part, see :meth:`stderr`). Zero when no residuals
-        are recorded.
-        """
-        res = self.residuals
-        if not all(k in res for k in ("fx", "fy", "fz", "n")):
-            return np.zeros((len(self.g), 3))
-        n = np.asarray(res["n"], np.float64)
-        p_z = G_TERMS + (2 if self.model == "coupled" else 0)
-        rms = np.stack([np.asarray(res[k], np.float64) for k in ("fx", "fy", "fz")], axis=-1)
-        p = np.array([1.0, 1.0, p_z])
-        dof = np.where(n[:, None] > p + 1, n[:, None] / np.maximum(n[:, None] - p, 1.0), 1.0)
-        return rms * np.sqrt(dof)
+        """The curves' own error per element and axis, (E, 3) N (:func:`.propagation.model_error`)."""
+        return propagation.model_error(self)
 
     def stderr(self, readings: Readings, errors=None, *, model_error: bool = True) -> np.ndarray:
-        """Standard errors of :meth:`forces`, (E, 3) or (T, E, 3) N.
+        """Standard errors of :meth:`forces`, (E, 3) or (T, E, 3) N (:func:`.propagation.stderr`).
 
-        Parameters
-        ----------
-        readings : Readings
-        errors : ReadingErrors, optional
-            The readings' covariance (:func:`optitact.uncertainty.reading_errors`),
-            propagated through :meth:`jacobian`; None: the calibration's
-            model error alone.
-        model_error : bool
-            Add :meth:`model_error` in quadrature (default).
-
-        Returns
-        -------
-        ndarray
-            ``sqrt(J C J^T + m^2)`` per element and axis, ``C`` the readings'
-            covariance (independent between elements), ``m`` the model error.
-            Elements without contact read 0 N and get the model error alone.
+        ``errors``: the readings' covariance (:func:`optitact.uncertainty.reading_errors`); None gives the
+        model error alone. ``model_error``: add it in quadrature (default).
 
         Examples
         --------
         >>> from optitact.calib import default_calibration
-        >>> cal = default_calibration()
-        >>> se = cal.stderr(Readings.empty(41))
+        >>> se = default_calibration().stderr(Readings.empty(41))
         >>> se.shape, bool((se > 0).all())
         ((41, 3), True)
         """
-        shape = np.shape(readings.G) + (3,)
-        var = np.zeros(shape)
-        if errors is not None:
-            cov = np.asarray(errors.cov, np.float64)
-            if cov.shape != np.shape(readings.G) + (3, 3):
-                raise ShapeError(f"errors.cov must have shape {np.shape(readings.G) + (3, 3)} to match the "
-                                 f"readings, got {cov.shape}")
-            if self.crosstalk is None:
-                local = self._local_jacobian(readings)[0]
-                var = np.einsum("...ab,...bc,...ac->...a", local, cov, local)
-            else:
-                jac = self.jacobian(readings)
-                var = np.einsum("...eajb,...jbc,...eajc->...ea", jac, cov, jac)
-            var = np.where(np.asarray(readings.contact, bool)[..., None], var, 0.0)
-        if model_error:
-            var = var + self.model_error() ** 2
-        return np.sqrt(var)
+        return propagation.stderr(self, readings, errors, with_model_error=model_error)
 
     def apply(self, readings: Readings, errors=None):
         """A :class:`optitact.forces.ForceField` per frame (a list for stack readings).

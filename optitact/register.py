@@ -19,17 +19,21 @@ Notes
 Steps (each checked, each refusal naming what to add):
 
 1. *Spots*: ``frame - noload``, thresholded at ``k`` times a robust noise
-   estimate (1.4826 x the median absolute deviation), connected components
+   estimate (1.4826 x the median absolute deviation), and never below the
+   mirror image of the difference's own negative tail (quantised dark frames,
+   where the robust estimate collapses), connected components
    (``cv2.connectedComponentsWithStats``, 8-connected).
 2. *Clusters*: a pressed element shows a ring of up to ``n_cones`` cone spots
    (merged into one blob when the image is small); spots whose dome points
    (seen with the nominal camera) lie within a cone-circle diameter are linked
-   into one cluster. Its centroid is the intensity-weighted centroid of its
-   pixels (grown by two pixels), the *model's* centroid the mean of the
-   projected cone patch centres of a pure normal press (:func:`contact_patches`
-   through :func:`pixel_from_dome`, refraction included): equal spots give the
-   same point. A cluster much more compact than an element's ring (a
-   reflection) is dropped.
+   into one cluster. The *model's* centroid is the mean of the projected cone
+   patch centres of a pure normal press (:func:`contact_patches` through
+   :func:`pixel_from_dome`, refraction included); the measured one is the
+   plain mean of the cone spots' centroids when every cone is a spot of its
+   own (whatever their brightness: the rim light makes the outer cones
+   brighter), else the intensity-weighted centroid of the cluster's pixels
+   (grown by two pixels), which equal spots make the same point. A cluster
+   much more compact than an element's ring (a reflection) is dropped.
 3. *Association*: the common image shift between clusters and the nominal
    camera's predicted element centroids is voted for (every cluster-element
    pair proposes one; the one most clusters agree with wins, the smallest on
