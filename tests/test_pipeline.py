@@ -1051,3 +1051,14 @@ def test_noise_map_from_a_baseline_stack():
     assert single.threshold_map is None
     assert single.replace(k=2.0).threshold_map is None
     assert pipe.replace(k=2.0).threshold_map is not None
+
+
+def test_poisson_cdf_is_scipys_without_importing_it():
+    """The impulse floor's Poisson CDF (no scipy.special at start-up) equals scipy.special.pdtr."""
+    from scipy.special import pdtr
+
+    from optitact.baseline import poisson_cdf
+
+    k = np.arange(0, 250)
+    mean = np.array([0.0, 1e-9, 0.02, 0.7, 4.0, 23.5, 90.0])
+    np.testing.assert_allclose(poisson_cdf(k, mean), pdtr(k[None, :], mean[:, None]), rtol=0, atol=1e-13)
