@@ -32,7 +32,7 @@ SCHEMA_VERSION = 1
 MAX_FILE_BYTES = 5_000_000
 #: Pipeline options a calibration file may hold.
 PIPELINE_KEYS = ("method", "filter", "filter_size", "noise_sigma", "k", "min_pixels", "saturation",
-                 "radius", "grid_mm")
+                 "radius", "grid_mm", "tail")
 
 
 class CalibrationMismatchError(InputError):

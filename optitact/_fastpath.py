@@ -19,7 +19,8 @@ import numpy as np
 
 from . import _kernel
 from .readings import Readings
-from .steps import G_MIN, _saturation_level, denoise, filter_radius, readings_from_moments, subtract_baseline
+from .steps import (G_MIN, _saturation_level, add_clipped_tail, denoise, filter_radius, readings_from_moments,
+                    subtract_baseline)
 
 __all__ = ["MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit", "kernel_args", "run_split",
            "thread_count"]
@@ -100,9 +101,11 @@ def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     else:
         run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, sat, exact, out),
                   np.linspace(0, t_n, n_threads + 1).astype(int))
-    if single:
-        return Readings(sums[0, 0], u[0], flags[1, 0], flags[0, 0])
-    return Readings(sums[0], u, flags[1], flags[0])
+    out = (Readings(sums[0, 0], u[0], flags[1, 0], flags[0, 0]) if single
+           else Readings(sums[0], u, flags[1], flags[0]))
+    if pipe.tail == "gaussian":
+        out = add_clipped_tail(out, sums[1, 0] if single else sums[1])
+    return out
 
 
 def fast_numpy(pipe, stack: np.ndarray, single: bool = False) -> Readings:
@@ -150,8 +153,10 @@ def fast_numpy(pipe, stack: np.ndarray, single: bool = False) -> Readings:
     if hot.size:
         saturated.reshape(-1)[fold.label[hot % n_ent] + (hot // n_ent) * n_el] = True
     if single:
-        return readings_from_moments(g_sum[0], m[0], saturated[0], pipe.floor, weight=w_sum[0])
-    return readings_from_moments(g_sum, m, saturated, pipe.floor, weight=w_sum)
+        out, w_sum = readings_from_moments(g_sum[0], m[0], saturated[0], pipe.floor, weight=w_sum[0]), w_sum[0]
+    else:
+        out = readings_from_moments(g_sum, m, saturated, pipe.floor, weight=w_sum)
+    return add_clipped_tail(out, w_sum) if pipe.tail == "gaussian" else out
 
 def filtered_lit(pipe, flat: np.ndarray):
     """Lit entries after the filter, computed on the crop that holds the regions plus the filter's reach."""

@@ -68,6 +68,7 @@ from .steps import (
     _mean0,
     _saturation_level,
     _var0,
+    add_clipped_tail,
     apply_threshold,
     check_frames,
     denoise,
@@ -109,6 +110,8 @@ __all__ = [
 ]
 
 METHODS = ("fast", "reference")
+#: What G does with the energy the threshold clips from the spots' tails (``Pipeline(tail=...)``).
+TAILS = ("none", "gaussian")
 #: Frames processed together by the fast method (bounds its temporary memory).
 CHUNK_FRAMES = 64
 
@@ -204,6 +207,11 @@ class Pipeline:
         order. Default: every core this process may use, with at least
         ``MIN_FRAMES_PER_THREAD`` (8) frames each, so single frames and short
         stacks stay on the calling thread. ``threads=1``: never split.
+    tail : {"none", "gaussian"}
+        ``"gaussian"`` adds back to G the energy the threshold clipped from
+        the spots' tails (:func:`~optitact.steps.clipped_tail`: exact for
+        Gaussian spots, from G and the lit pixels' summed threshold); default
+        ``"none"``. A calibration fitted with it must be applied with it.
 
     Raises
     ------
@@ -256,7 +264,7 @@ class Pipeline:
                  saturation: float | None = None, radius: float | None = None,
                  grid_mm: float | None = None, bits: int | None = None,
                  readings_bits: int | None = None, kernel: str = "auto",
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, tail: str = "none") -> None:
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
         if not isinstance(camera, Camera):
@@ -274,6 +282,10 @@ class Pipeline:
                 raise InputError(f"filter_size of a median must be odd, got {filter_size}")
         else:
             filter_size = positive(filter_size, "filter_size")
+        if tail not in TAILS:
+            raise InputError(f"tail must be one of {TAILS}, got {tail!r}")
+        #: How G treats the energy the threshold clips from the spots' tails (see ``tail``).
+        self.tail = tail
         if kernel not in _kernel.KERNELS:
             raise InputError(f"kernel must be one of {_kernel.KERNELS}, got {kernel!r}")
         self._kernel_request = kernel
@@ -399,7 +411,8 @@ class Pipeline:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
                     noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
                     saturation=self.saturation, bits=self.bits, readings_bits=self.readings_bits,
-                    kernel=self._kernel_request, threads=self._threads_request, **self._geometry)
+                    kernel=self._kernel_request, threads=self._threads_request, tail=self.tail,
+                    **self._geometry)
 
     def _check_scale(self, stack: np.ndarray, name: str) -> None:
         """InputError when integer frames are not of the pipeline's bit depth or the baseline's dtype.
@@ -534,7 +547,8 @@ class Pipeline:
         w, m = integrate(dewarp(np.where(img > thr, img - thr, 0.0), self.grids), self.grids)
         level = _saturation_level(frame.dtype, self._frame_saturation)
         hot = dewarp((frame >= level).astype(np.float64), self.grids)
-        return readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor, weight=w)
+        out = readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor, weight=w)
+        return add_clipped_tail(out, w) if self.tail == "gaussian" else out
 
     def _level(self, dtype: np.dtype):
         """Lit level per region entry for frames of ``dtype``, and the entries to watch for saturation.

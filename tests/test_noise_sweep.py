@@ -31,6 +31,8 @@ def test_nominal_centroid_efficiency(nominal):
     assert all(abs(b) < 3 * s for b, s in zip(n["u"]["bias_mm"], n["u"]["std_mm"], strict=True)) \
         or max(abs(b) for b in n["u"]["bias_mm"]) < 0.001
     assert -0.05 < n["G"]["bias_rel"] < 0  # the threshold drops the rim: G reads a little low
+    # ... and tail='gaussian' adds the clipped energy back (Gaussian spots: what the model assumes)
+    assert abs(n["G"]["bias_rel_tail"]) < 0.2 * abs(n["G"]["bias_rel"])
 
 
 def test_contact_flag_at_the_noise_floor_flickers_as_predicted():

@@ -1062,3 +1062,30 @@ def test_poisson_cdf_is_scipys_without_importing_it():
     k = np.arange(0, 250)
     mean = np.array([0.0, 1e-9, 0.02, 0.7, 4.0, 23.5, 90.0])
     np.testing.assert_allclose(poisson_cdf(k, mean), pdtr(k[None, :], mean[:, None]), rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("method, kernel", [("fast", "numba"), ("fast", "numpy"), ("reference", "auto")])
+def test_tail_gaussian_adds_back_what_the_threshold_clips(method, kernel):
+    """Analytic Gaussian spots on the dome (true G = A 2 pi s^2, 2-3 pixels wide on this small camera)
+    thresholded at a tenth and a fifth of their peak: G alone misses 8-25 %; with tail='gaussian' what
+    is left is the pixels' coarseness (lit area counted in whole pixels, the dewarp's interpolation):
+    within 10 % in every ring and on average under a third of the miss. u and the contact flags do not
+    change. (On the noise sweep's spots it takes the bias from -2.4 % to +0.1 % at the nominal noise.)"""
+    if kernel == "numba":
+        pytest.importorskip("numba")
+    spots = [(e, (0.1, -0.05), 0.35, 40.0) for e in RING_ELEMENTS]
+    frame = spot_frame(CAM, spots)
+    truth = true_g(40.0, 0.35)
+    for threshold in (4.0, 8.0):
+        plain = Pipeline(SENSOR, CAM, noise_sigma=threshold / 3.0, k=3.0, min_pixels=1, method=method,
+                         kernel=kernel)
+        tail = plain.replace(tail="gaussian")
+        a, b = plain.process(frame), tail.process(frame)
+        before = np.abs(a.G[RING_ELEMENTS] / truth - 1.0)
+        after = np.abs(b.G[RING_ELEMENTS] / truth - 1.0)
+        assert np.all(a.G[RING_ELEMENTS] < 0.93 * truth)
+        assert after.max() <= 0.10 and after.mean() < before.mean() / 3.0, (before, after)
+        np.testing.assert_array_equal(b.u, a.u)
+        np.testing.assert_array_equal(b.contact, a.contact)
+    with pytest.raises(ValueError, match="tail must be one of"):
+        Pipeline(SENSOR, SMALL, tail="exponential")
