@@ -7,7 +7,7 @@ catch ``ValueError`` or ``TypeError`` keep working.
 from __future__ import annotations
 
 __all__ = ["OptitactError", "ShapeError", "InputError", "RenderError", "MissingExtraError", "KindError",
-           "OptitactWarning"]
+           "RegistrationError", "GainsError", "OptitactWarning"]
 
 
 class OptitactError(Exception):
@@ -36,6 +36,17 @@ class KindError(OptitactError, TypeError):
     A ``TypeError``, so callers catching it keep working; a subclass so that
     the command line can tell the user's bad data from a programming error.
     """
+
+
+class RegistrationError(InputError):
+    """Registration: the frames cannot pin the model down; the message says what to add.
+
+    Too few spots or elements, an ambiguous association, a degenerate pose.
+    """
+
+
+class GainsError(RegistrationError):
+    """Registration's ``fit_gains``: no pressed element's gain could be measured (the pose fit was fine)."""
 
 
 class OptitactWarning(UserWarning):

@@ -20,7 +20,7 @@ from optitact.calib import CalibrationMismatchError, default_calibration, finger
 from optitact.camera_models import OpenCVFisheyeCamera
 from optitact.cli import main
 from optitact.readings import Readings
-from optitact.register import _reference_curve, _reference_g
+from optitact.gains import reference_curve, reference_g
 
 W, H = 64, 48
 F0 = (min(W, H) / 2) / np.deg2rad(70)
@@ -92,12 +92,12 @@ def test_transfer_refuses_another_layout_or_options(shipped):
 def test_refinement_from_default_starts_at_the_sensors_gains(shipped, moved):
     """Presses made by the transferred curves (G = gain x the shipped G): the refinement from
     ``start="default"`` finds nothing to change (its fitted gains on top of the transfer are 1)."""
-    grid, fz = _reference_curve(shipped)
+    grid, fz = reference_curve(shipped)
     forces = np.zeros((6, 41, 3))
     G = np.zeros((6, 41))
     for t, f in enumerate(np.linspace(0.2, 0.7, 6)):
         forces[t, :, 2] = f
-        G[t] = _reference_g(grid, fz, f) * GAINS
+        G[t] = reference_g(grid, fz, f) * GAINS
     readings = _readings(G, np.zeros((6, 41, 2)))
     cal = fit_presses(readings, forces, sensor=BUILT, camera=CAM, start="default")
     np.testing.assert_allclose(cal.provenance["gain"], 1.0, rtol=0, atol=2e-3)
