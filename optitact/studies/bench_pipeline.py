@@ -44,7 +44,7 @@ def _floor(frames, thr) -> None:
 
 
 def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = True) -> tuple:
-    """Pipeline construction without and with the precompute cache, and a fresh process on one frame (s).
+    """Pipeline construction without and with the precompute cache, a one-frame baseline, a fresh process (s).
 
     Medians over ``repeats`` (one cold construction above 1 Mpixel: seconds
     each); the in-memory copies are forgotten before each construction, so
@@ -64,7 +64,7 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = 
         os.environ["OPTITACT_PRECOMPUTE_CACHE"] = "1" if cache else "0"
         try:
             t = time.perf_counter()
-            Pipeline(sensor, camera, baseline=baseline)
+            Pipeline(sensor, camera)  # the sensor and camera's precompute (no baseline: see below)
             return time.perf_counter() - t
         finally:
             if old is None:
@@ -72,11 +72,18 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = 
             else:
                 os.environ["OPTITACT_PRECOMPUTE_CACHE"] = old
 
+    def with_baseline() -> float:
+        pipe = Pipeline(sensor, camera)
+        t = time.perf_counter()
+        pipe.with_baseline(baseline)  # one frame: its noise, impulses and their floor per region
+        return time.perf_counter() - t
+
     cold = [build(False) for _ in range(repeats if camera.width * camera.height <= 2**20 else 1)]
     build(True)  # the file is there
     cached = [build(True) for _ in range(repeats)]
+    base = float(np.median([with_baseline() for _ in range(repeats)]))
     if not startup:
-        return float(np.median(cold)), float(np.median(cached)), None
+        return float(np.median(cold)), float(np.median(cached)), base, None
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         np.save(os.path.join(tmp, "base.npy"), baseline)
@@ -89,7 +96,7 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = 
             t = time.perf_counter()
             subprocess.run(cmd, check=True, capture_output=True)
             runs.append(time.perf_counter() - t)
-    return float(np.median(cold)), float(np.median(cached)), float(np.median(runs))
+    return float(np.median(cold)), float(np.median(cached)), base, float(np.median(runs))
 
 
 def _per_frame(times: list, n: int) -> tuple[float, float]:
@@ -193,9 +200,11 @@ def bench_pipeline(sizes=((320, 240), (640, 480), (1280, 960), (1920, 1440)), *,
         ``cores``, ``threads``, ``kernel`` (what the fast path ran:
         ``"numba"`` or ``"numpy"``), versions, ``table`` (fast / floor, CPU
         time, per size and load: the README's table) and per size ``WxH``:
-        ``precompute_cold_s`` (the pipeline's construction without the
-        precompute cache, median of up to three), ``precompute_cached_s``
-        (from the cache on disk, nothing in memory), ``startup_to_first_frame_s``
+        ``precompute_cold_s`` (the pipeline's construction for the sensor and
+        camera without the precompute cache, median of up to three),
+        ``precompute_cached_s`` (from the cache on disk, nothing in memory),
+        ``one_frame_baseline_s`` (what a one-frame baseline adds: its noise,
+        impulses and their floor per region), ``startup_to_first_frame_s``
         (wall time of a fresh ``python -m optitact.cli process`` on one frame with a
         baseline frame, interpreter start to table written), and per load
         ``loads[n]``: microseconds per frame, wall (``*_us``) and CPU
@@ -253,9 +262,10 @@ def bench_pipeline(sizes=((320, 240), (640, 480), (1280, 960), (1920, 1440)), *,
                                              n_frames=n_frames, repeats=repeats, n_reference=n_reference,
                                              seed=seed, label=f"bench pipeline {key}, {n} loaded")
         print(f"optitact: bench pipeline {key}: precompute and start-up", file=sys.stderr)
-        cold, cached, start = _start_up(sensor, camera, baseline, frame, repeats=min(repeats, 3),
-                                        startup=startup)
+        cold, cached, base, start = _start_up(sensor, camera, baseline, frame, repeats=min(repeats, 3),
+                                              startup=startup)
         row |= {"precompute_cold_s": round(cold, 3), "precompute_cached_s": round(cached, 4),
+                "one_frame_baseline_s": round(base, 4),
                 "startup_to_first_frame_s": None if start is None else round(start, 3)}
         result[key] = row
         result["table"][key] = {n: r["fast_over_floor"] for n, r in row["loads"].items()}
