@@ -28,8 +28,9 @@ for its mean. This is the same linearisation the noise sweep
 (:mod:`optitact.studies.noise_sweep`) checks against the Cramér–Rao bound;
 what it leaves out is the threshold itself: a pixel whose mean lies near the
 threshold is lit in some frames and not in others, which adds to var G (a
-jump of ``t`` per crossing) and biases G low (the clipped tails). Both are
-small for the compact spots of loaded elements.
+jump of ``t`` per crossing) and biases G low (the clipped tails, which
+``Pipeline(tail="gaussian")`` adds back). Both are small for the compact
+spots of loaded elements.
 
 Here rather than in :mod:`optitact.calib`: the errors belong to the frames
 and the pipeline (a user without a calibration gets them too), and
