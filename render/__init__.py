@@ -154,7 +154,7 @@ def render(sensor: DomeSensor, forces, *, camera: Camera | None = None, spp: int
         noise, milliseconds per frame, any camera model with no per-camera
         set-up; ``spp`` and ``pixels`` are not used. ``background`` defaults
         to the camera's no-load frame
-        (:func:`~optitact.render.emission.noload_radiance`: path-traced and
+        (:func:`~optitact.render.background.noload_radiance`: path-traced and
         cached for a FisheyeCamera, resampled through the dome from the
         default camera's for other models).
     n_sub : int

@@ -36,6 +36,7 @@ from optitact.camera import Camera
 from optitact.contact import Contacts
 from optitact.sensor import DomeSensor
 
+from .background import NOLOAD_SEED, NOLOAD_SPP, noload_radiance
 from .coverage import MIN_SAMPLES_ACROSS, patch_coverage
 from .emission import (
     BAND_THETA_DEG,
@@ -45,8 +46,6 @@ from .emission import (
     CLUSTER_RADIUS_MM,
     CLUSTER_THETA_DEG,
     NEAR_FIELD_DEG,
-    NOLOAD_SEED,
-    NOLOAD_SPP,
     PROBES_PER_RENDER,
     SHIPPED_TABLES,
     TABLE_RADII_MM,
@@ -56,7 +55,6 @@ from .emission import (
     EmissionTable,
     band_weights,
     emission_table,
-    noload_radiance,
     shipped_table,
 )
 from .scene import RenderSettings
