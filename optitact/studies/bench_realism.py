@@ -97,9 +97,14 @@ class StandIn:
 
     def rim_factor(self, polar, azimuth) -> np.ndarray:
         """The rim light's relative strength at dome points ``(polar, azimuth)`` (rad)."""
-        a1, p1, a2, p2 = self.rim
-        s = np.clip(np.asarray(polar) / (np.pi / 2), 0.0, 1.0)
-        return 1.0 + s * (a1 * np.cos(azimuth - p1) + a2 * np.cos(2.0 * (azimuth - p2)))
+        return _rim_factor(self.rim, polar, azimuth)
+
+
+def _rim_factor(rim, polar, azimuth) -> np.ndarray:
+    """The rim light ``1 + s (a1 cos(phi - p1) + a2 cos 2(phi - p2))``, ``s = polar / 90 deg``."""
+    a1, p1, a2, p2 = rim
+    s = np.clip(np.asarray(polar) / (np.pi / 2), 0.0, 1.0)
+    return 1.0 + s * (a1 * np.cos(azimuth - p1) + a2 * np.cos(2.0 * (azimuth - p2)))
 
 
 def draw_standin(seed: int, size: tuple[int, int] = (640, 480)) -> StandIn:
@@ -116,8 +121,7 @@ def draw_standin(seed: int, size: tuple[int, int] = (640, 480)) -> StandIn:
     shaped = DomeSensor(outer_radius=nominal.outer_radius * (1 + rng.uniform(-0.01, 0.01)),
                         shell_thickness=nominal.shell_thickness * (1 + rng.uniform(-0.05, 0.05)),
                         element_offsets=offsets)
-    probe = StandIn(shaped, None, None, rim, brightness)
-    gains = brightness * probe.rim_factor(shaped.element_polar, shaped.element_azimuth)
+    gains = brightness * _rim_factor(rim, shaped.element_polar, shaped.element_azimuth)
     sensor = DomeSensor(outer_radius=shaped.outer_radius, shell_thickness=shaped.shell_thickness,
                         element_offsets=offsets, element_gain=gains)
     f0 = (min(w, h) / 2) / math.radians(70.0)  # the default equidistant camera's focal length (px/rad)
