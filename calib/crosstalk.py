@@ -71,8 +71,7 @@ class CrossTalk:
 
     def matrix(self, sensor: DomeSensor) -> np.ndarray:
         """``W`` (E, E) for ``sensor``'s elements (zero diagonal)."""
-        key = id(sensor), sensor
-        if key not in self._cache:
+        if self._cache.get("sensor") is not sensor:  # the last sensor's matrix (every frame asks again)
             ring = sensor.element_ring
             n_rings = len(sensor.ring_counts)
             k = np.asarray(self.coefficients, dtype=np.float64)
@@ -81,9 +80,8 @@ class CrossTalk:
                                  f"sensor of {n_rings} rings, got {k.shape}")
             w = k[ring][:, ring] + k[ring, n_rings][:, None] * np.exp(-_geodesic(sensor) / self.near_mm)
             np.fill_diagonal(w, 0.0)
-            self._cache.clear()
-            self._cache[key] = w
-        return self._cache[key]
+            self._cache.update(sensor=sensor, matrix=w)
+        return self._cache["matrix"]
 
     def to_dict(self) -> dict:
         """JSON-friendly parameters."""
