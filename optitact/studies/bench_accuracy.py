@@ -228,9 +228,10 @@ def _plot_families(out: dict, path):
         ax.axhline(TARGET_PCT_FS[axis], color="k", ls=":", lw=1, label=f"target {TARGET_PCT_FS[axis]:g} % FS")
         ax.set_xticks(x)
         ax.set_xticklabels(fams, rotation=30, ha="right")
+        ax.set_ylim(0, 1.3 * ax.get_ylim()[1])  # room for the legend above the bars
         ax.set_ylabel(f"{axis.upper()} RMSE (% of full scale)")
         ax.set_title(f"{axis.upper()}: held-out error per load family")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, ncol=2, loc="upper center")
     fig.suptitle(f"calibration set: {out['calibration_set']['path'].rsplit('/', 1)[-1]}; held-out "
                  f"{out['test_set']['render_mode']} at {out['test_spp']} spp", fontsize=10)
     fig.tight_layout()
