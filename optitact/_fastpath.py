@@ -66,19 +66,21 @@ def run_split(fn, bounds) -> list:
 
 
 def kernel_args(pipe, dtype: np.dtype) -> tuple:
-    """Per-entry arrays of the compiled kernel for ``dtype`` frames (:func:`optitact._kernel.lit_sums`)."""
+    """Arguments of the compiled kernel for ``dtype`` frames (:func:`optitact._kernel.lit_sums`)."""
     key = ("kernel", dtype.str)
     if key not in pipe._levels:
         level, watch, sat = pipe._level(dtype)
         fold = pipe.region_weights
-        area, wx, wy = (np.ascontiguousarray(w) for w in fold.weights)
-        small = len(fold.pixel) and max(fold.pixel[-1], len(fold.n_pixels)) < 2**31
-        index = np.int32 if small else np.intp  # half the bytes the kernel streams
-        args = (fold.pixel.astype(index), fold.label.astype(index), np.ascontiguousarray(level),
-                pipe.entry_baseline, np.ascontiguousarray(pipe.entry_threshold, np.float64), area, wx, wy,
-                np.ascontiguousarray(watch, np.intp), np.ascontiguousarray(pipe.floor, np.float64), G_MIN)
-        pipe._levels[key] = (args, sat)
+        n_pixels = max(int(np.prod(pipe.camera.shape)), _kernel.CHUNK)  # smaller frames are padded
+        cpix, centry, clevel, more = _kernel.chunks(fold.pixel, np.ascontiguousarray(level), n_pixels)
+        fent = np.column_stack([pipe.entry_baseline, pipe.entry_threshold, *fold.weights]).astype(np.float64)
+        watched = np.column_stack([fold.pixel[watch], fold.label[watch]]).astype(np.intp).reshape(-1, 2)
+        params = np.array([sat, G_MIN, 0.0 if dtype.kind != "f" else 1.0])
+        floor = np.ascontiguousarray(pipe.floor, np.float64)
+        pipe._levels[key] = (fold.label.astype(np.intp), more, np.ascontiguousarray(fent), watched, cpix,
+                             centry, clevel, params, floor)
     return pipe._levels[key]
+
 
 def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     """The fast method's sums by the compiled kernel (numba), frames split across threads.
@@ -87,19 +89,20 @@ def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     """
     t_n, n_el = stack.shape[0], pipe.grids.n_elements
     flat = stack.reshape(t_n, -1)
-    if not flat.flags.c_contiguous:
+    if flat.shape[1] < _kernel.CHUNK:  # a tiny frame: pad it to one chunk (never lit: no entry there)
+        flat = np.pad(flat, ((0, 0), (0, _kernel.CHUNK - flat.shape[1])))
+    elif not flat.flags.c_contiguous:
         flat = np.ascontiguousarray(flat)
-    args, sat = kernel_args(pipe, stack.dtype)
+    args = kernel_args(pipe, stack.dtype)
     sums = np.zeros((2, t_n, n_el))
     flags = np.zeros((2, t_n, n_el), bool)
     u = np.zeros((t_n, n_el, 2))
-    out = (sums[0], sums[1], u, flags[0], flags[1])
-    exact = stack.dtype.kind == "f"
+    out = (sums, u, flags)
     n_threads = pipe.threads_for(t_n) if t_n > 1 else 1
     if n_threads == 1:
-        _kernel.lit_sums(flat, 0, t_n, args, sat, exact, out)
+        _kernel.lit_sums(flat, 0, t_n, args, out)
     else:
-        run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, sat, exact, out),
+        run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, out),
                   np.linspace(0, t_n, n_threads + 1).astype(int))
     out = (Readings(sums[0, 0], u[0], flags[1, 0], flags[0, 0]) if single
            else Readings(sums[0], u, flags[1], flags[0]))

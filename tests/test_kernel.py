@@ -13,6 +13,7 @@ import json
 import subprocess
 import sys
 import textwrap
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ import pytest
 
 import optitact
 from optitact import _kernel
-from optitact.errors import InputError
+from optitact.errors import InputError, OptitactWarning
 from optitact.pipeline import CHUNK_FRAMES, Pipeline
 
 import test_pipeline
@@ -112,6 +113,48 @@ def test_numba_equals_numpy_on_the_pipeline_tests_frames(noisy_scene):
         r = p.replace(method="reference").process(cast(frame))
         np.testing.assert_allclose(b.G, r.G, rtol=1e-9, atol=0)
         np.testing.assert_allclose(b.u, r.u, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("n_pixels", [64, 100, 1000])
+def test_chunks_cover_every_entry_once(n_pixels):
+    """Every entry sits in exactly one slot chain at its own pixel; empty slots never light."""
+    rng = np.random.default_rng(n_pixels)
+    pixel = np.sort(rng.integers(0, n_pixels, 3 * n_pixels // 4))  # repeats: pixels shared by regions
+    level = rng.integers(0, 200, n_pixels).astype(np.uint8)[pixel]  # a pixel's level (its baseline + threshold)
+    cpix, centry, clevel, more = _kernel.chunks(pixel, level, n_pixels)
+    assert np.all(cpix >= 0) and np.all(cpix + _kernel.CHUNK <= n_pixels)
+    seen = []
+    for slot in np.flatnonzero(centry >= 0):
+        k, j = divmod(slot, _kernel.CHUNK)
+        i = centry[slot]
+        while True:  # the kernel's walk over a shared pixel's entries
+            assert pixel[i] == cpix[k] + j
+            seen.append(i)
+            if not more[i]:
+                break
+            i += 1
+        assert clevel[slot] == level[centry[slot]]
+    assert sorted(seen) == list(range(len(pixel)))  # each entry once
+    assert np.all(clevel[centry < 0] == 255)  # nothing is greater than the dtype's top
+    with pytest.raises(ValueError, match="share its lit level"):
+        _kernel.chunks(np.array([3, 3]), np.array([1, 2], np.uint8), n_pixels)
+
+
+@needs_numba
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_numba_equals_numpy_where_regions_touch_and_on_tiny_frames(dtype):
+    """Wide regions share pixels (two entries per pixel); on the smallest frames the last chunk is clamped."""
+    for camera, radius in ((SMALL, 3.5), (optitact.FisheyeCamera(width=12, height=9), None)):
+        frames, base = random_frames(dtype, n=4, seed=3, shape=(max(camera.height, 12), camera.width))
+        frames, base = frames[:, :camera.height], base[:camera.height]
+        with warnings.catch_warnings():  # a 12x9 one-frame baseline is too small to measure noise: said
+            warnings.simplefilter("ignore", OptitactWarning)
+            fast = Pipeline(SENSOR, camera, baseline=base, kernel="numba", threads=1, radius=radius)
+            slow = fast.replace(kernel="numpy")
+        if radius is not None:
+            pix = fast.region_weights.pixel
+            assert np.any(pix[1:] == pix[:-1])  # the case under test
+        assert_identical(fast.process(frames), slow.process(frames))
 
 
 @needs_numba

@@ -148,6 +148,9 @@ def add_parsers(sub) -> None:
 
     for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab),
                     ("realism", breal)):
+        p.add_argument("--json", action="store_true",
+                       help="print the result as one JSON object on stdout (what every bench prints; "
+                            "the flag is accepted so that scripts can say so)")
         p.set_defaults(run=BENCHES[name])
 
 
