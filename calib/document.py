@@ -138,7 +138,7 @@ def from_document(cls, d):
               arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
               arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
               residuals, dict(d.get("provenance", {})), intensity, _crosstalk(d.get("crosstalk"), sensor),
-              arr("u0", (n, 2, 2)) if "u0" in el else None)
+              arr("u0", (n, 2, 2)) if "u0" in el else None, _error_model(d.get("error_model")))
     if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
         raise InputError("calibration scales must be > 0")
     if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
@@ -167,6 +167,18 @@ def from_document(cls, d):
             f"calibration fingerprint {d['fingerprint']!r} does not match its own sensor, "
             f"camera and pipeline ({cal.fingerprint}); the file was edited or is corrupt")
     return cal
+
+
+def _error_model(value):
+    """The document's measured error model (None when it has none)."""
+    if value is None:
+        return None
+    from .error_model import ErrorModel
+
+    try:
+        return ErrorModel.from_dict(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"calibration 'error_model' is not valid: {exc}") from None
 
 
 def _crosstalk(value, sensor: DomeSensor):

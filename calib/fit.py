@@ -43,6 +43,7 @@ from .curves import G_TERMS, MODELS, fit_element, g_design, zero_shear_centroid
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
 from .document import PIPELINE_KEYS as PIPELINE_KEYS
 from .document import SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, from_document, read_document
+from .error_model import ErrorModel
 
 __all__ = ["MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "fit"]
 # MIN_RELATIVE_SPREAD, MAX_FILE_BYTES and PIPELINE_KEYS stay importable from here (re-exported above).
@@ -125,6 +126,9 @@ class Calibration:
         the rim light makes the cones nearer the rim brighter, so an unsheared
         element's centroid sits off its centre; the shear curve reads ``u -
         u0(Fz)``. None: zero (calibrations made before it existed).
+    error_model : ErrorModel or None
+        The calibration's error measured on independent data (:meth:`validated`);
+        :meth:`stderr` adds it instead of the fit residuals. None: not measured.
     """
 
     model: str
@@ -143,9 +147,12 @@ class Calibration:
     intensity: IntensityScale = field(default_factory=IntensityScale)
     crosstalk: CrossTalk | None = None
     u0: np.ndarray | None = None
+    error_model: ErrorModel | None = None
 
     def __post_init__(self) -> None:
         check_type(self.intensity, IntensityScale, "intensity")
+        if self.error_model is not None:
+            check_type(self.error_model, ErrorModel, "error_model")
         if self.u0 is not None and np.shape(self.u0) != (len(self.g), 2, 2):
             raise ShapeError(f"u0 must have shape {(len(self.g), 2, 2)}, got {np.shape(self.u0)}")
         if self.crosstalk is not None:
@@ -466,6 +473,56 @@ class Calibration:
         """
         return propagation.stderr(self, readings, errors, with_model_error=model_error)
 
+    def validated(self, readings: Readings, forces, errors=None, *, source: str = "") -> Calibration:
+        """A copy with the calibration's error measured on independent readings of known forces.
+
+        The curves stay as they are; the residuals of :meth:`forces` on
+        readings the fit never saw (validation frames, or gauge presses of
+        the sensor in use) give an :class:`~optitact.calib.error_model.ErrorModel`
+        (a floor plus a part growing with Fz, per axis), fitted beside the
+        readings' own noise, which :meth:`stderr` then adds instead of the
+        fit residuals. In-sample residuals miss what the calibration
+        samples leave out, so without this the error bars are too narrow
+        wherever the calibration is used on other frames.
+
+        Parameters
+        ----------
+        readings : Readings
+            Stack readings (T, E) of the validation frames.
+        forces : (T, E, 3) array_like
+            Their true element-local forces, N; samples with ``Fz > 0`` count.
+        errors : ReadingErrors, optional
+            The readings' covariance (:func:`optitact.uncertainty.reading_errors`),
+            propagated and set beside the residuals: pass it when the
+            calibration will be used with ``errors`` too (otherwise the model
+            error takes the frames' noise as well).
+        source : str
+            Where the validation data came from (kept in the file).
+
+        Returns
+        -------
+        Calibration
+
+        Raises
+        ------
+        ShapeError
+            ``forces`` is not (T, E, 3) for stack readings of E elements.
+        InputError
+            Fewer than :data:`~optitact.calib.error_model.MIN_SAMPLES` loaded samples.
+        """
+        self._check(readings)
+        truth = np.asarray(forces, dtype=np.float64)
+        if not readings.is_stack or truth.shape != np.shape(readings.G) + (3,):
+            raise ShapeError(f"forces must have shape (T, E, 3) = {np.shape(readings.G) + (3,)} for stack "
+                             f"readings, got {truth.shape}")
+        est = self.forces(readings)[0]
+        noise = (propagation.stderr(self, readings, errors, with_model_error=False) if errors is not None
+                 else np.zeros_like(est))
+        loaded = truth[..., 2] > 0
+        model = ErrorModel.fit((est - truth)[loaded], noise[loaded], est[..., 2][loaded],
+                               source=source or f"{len(truth)} validation frames")
+        return replace(self, error_model=model)
+
     def apply(self, readings: Readings, errors=None):
         """A :class:`optitact.forces.ForceField` per frame (a list for stack readings).
 
@@ -502,6 +559,7 @@ class Calibration:
             "provenance": self.provenance,
             "intensity": self.intensity.to_dict(),
             **({} if self.crosstalk is None else {"crosstalk": self.crosstalk.to_dict()}),
+            **({} if self.error_model is None else {"error_model": self.error_model.to_dict()}),
         }
 
     def save(self, path: str | os.PathLike) -> Path:

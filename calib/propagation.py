@@ -76,7 +76,8 @@ def _local_jacobian(cal, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
     if cal.crosstalk is not None:
         G = cal.crosstalk.solve(cal.sensor, G, readings.contact, cal._normal_curve(u))
     out = np.empty(G.shape + (3, 3))
-    h_g, h_u = 1e-4 * cal.g_scale, 1e-4 * cal.u_scale
+    # steps that never vanish beside G (an element with almost no calibration samples has a tiny scale)
+    h_g, h_u = np.maximum(1e-4 * cal.g_scale, 1e-7 * np.abs(G)), 1e-4 * cal.u_scale
     out[..., 0] = (cal._per_element(G + h_g, u)[0] - cal._per_element(np.maximum(G - h_g, 0.0), u)[0]) \
         / (G + h_g - np.maximum(G - h_g, 0.0))[..., None]
     for k in (0, 1):
@@ -121,7 +122,10 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
         propagated through :func:`jacobian`; None: the calibration's
         model error alone.
     with_model_error : bool
-        Add :func:`model_error` in quadrature (default).
+        Add the model error in quadrature (default): the calibration's
+        measured :class:`~optitact.calib.error_model.ErrorModel` at each
+        element's estimated Fz where it has one
+        (:meth:`~optitact.calib.Calibration.validated`), else :func:`model_error`.
 
     Returns
     -------
@@ -153,5 +157,8 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
             var = np.einsum("...eajb,...jbc,...eajc->...ea", jac, cov, jac)
         var = np.where(np.asarray(readings.contact, bool)[..., None], var, 0.0)
     if with_model_error:
-        var = var + model_error(cal) ** 2
+        if cal.error_model is not None:
+            var = var + cal.error_model.sigma(cal.forces(readings)[0][..., 2]) ** 2
+        else:
+            var = var + model_error(cal) ** 2
     return np.sqrt(var)

@@ -109,6 +109,10 @@ def add_parsers(sub) -> None:
     bacc.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
                       help="load-pattern families of the held-out sets, each its own set: independent, "
                            "uniform, single, clustered, checkerboard, shear, or all (default: all)")
+    bacc.add_argument("--validation-frames", type=int, default=20, metavar="N",
+                      help="frames of the validation set (rendered like the held-out sets, blend pattern, "
+                           "seed + 900) on which each model's own error is measured for the error bars; 0: "
+                           "none (default 20)")
     bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this held-out set instead of generating one")
     bstab = bsub.add_parser(
@@ -182,7 +186,8 @@ def _accuracy(args) -> dict:
                           test_spp=args.test_spp, size=size(args.size),
                           calibration_set=args.calibration_set, test_set=args.test_set, seed=args.seed,
                           variant=args.variant, plot=args.plot, render_mode=args.render_mode,
-                          test_render_mode=args.test_render_mode, design_pattern=args.design_pattern)
+                          test_render_mode=args.test_render_mode, design_pattern=args.design_pattern,
+                          validation_frames=args.validation_frames)
 
 
 def _stability(args) -> dict:

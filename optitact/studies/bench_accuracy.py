@@ -22,7 +22,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                    calibration_set=None, test_set=None, seed: int = 0,
                    variant: str | None = None, plot=None, contact_min_n: float = 0.01,
                    render_mode: str = "two_stage", test_render_mode: str = "pixels",
-                   families=("independent",), design_pattern: str = "independent") -> dict:
+                   families=("independent",), design_pattern: str = "independent",
+                   validation_frames: int = 20) -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -61,6 +62,13 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     design_pattern : str
         Load pattern of the calibration set (:data:`optitact.calib.patterns.PATTERNS`);
         ``"blend"`` shows the fit every family, which the joint model needs.
+    validation_frames : int
+        Frames of the validation set (0: none; none either with a given
+        ``test_set``): rendered like the held-out sets (``test_render_mode``,
+        ``test_spp``) with the ``blend`` pattern and seed ``seed + 900``, it
+        measures each model's own error
+        (:meth:`~optitact.calib.Calibration.validated`) for the error bars;
+        neither the curves nor any held-out set see it.
 
     Returns
     -------
@@ -72,9 +80,11 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         ``max_abs_error_n``, ``contact_flag_error_rate``, ``clamped_rate``
         and ``coverage_90`` (per axis: the fraction of true forces inside
         the estimate's 90 % interval, ``+- 1.645`` standard errors of
-        :meth:`~optitact.calib.Calibration.stderr`: the frames' pixel noise
-        through :func:`optitact.uncertainty.reading_errors` with the set's
-        CCD gain, plus the calibration's model error), over every loaded
+        :meth:`~optitact.calib.Calibration.stderr`: the frames' pixel noise,
+        measured (:func:`frame_noise`), through
+        :func:`optitact.uncertainty.reading_errors`, plus the model's error
+        measured on the validation set; without one, the fit residuals), and ``coverage_90_fit_residuals``
+        (the same with the fit residuals as the model error), over every loaded
         element sample (``Fz > 0``) of the
         first family's held-out set; ``families``: the same per family, and
         ``worst_family``: per model and axis, the family with the largest RMSE.
@@ -139,20 +149,40 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         out["joint_refused"] = str(exc)
     ring = cals[MODELS[0]].sensor.element_ring
     out["families"] = {}
+    with_frames = any(fset.attrs.get("keep_frames") for fset in sets.values())
+    if with_frames:  # one renderer, spp and CCD for every held-out set
+        noise, out["frame_noise"] = frame_noise(ts)
+    validated = {}
+    if validation_frames and test_set is None and with_frames:
+        vs = get(None, integer(validation_frames, "validation_frames", minimum=1), seed + 900, "validation",
+                 test_spp, test_render_mode, Design(pattern="blend"), keep_frames=True)
+        v_read, v_truth = vs.readings(), vs.forces()
+        v_err = _reading_errors(vs, v_read, noise)
+        source = (f"{len(v_truth)} validation frames ({vs.attrs.get('render_mode')}, {vs.attrs['spp']} spp, "
+                  f"blend, seed {vs.attrs['seed']})")
+        validated = {model: cal.validated(v_read, v_truth, v_err, source=source) for model, cal in cals.items()}
+        out["validation_set"] = {"path": str(vs.path), "frames": int(vs.done.sum()), "seed": vs.attrs["seed"],
+                                 "render_mode": vs.attrs.get("render_mode"), "pattern": "blend",
+                                 "error_models": {m: c.error_model.to_dict() for m, c in validated.items()}}
+    elif test_set is not None:
+        print("optitact: bench accuracy: a given held-out set: no validation set, so coverage_90 uses the fit "
+              "residuals as the model error", file=sys.stderr)
     for fam, fset in sets.items():
         f_truth, f_read = fset.forces(), fset.readings()
         out["families"][fam] = {"set": {"path": str(fset.path), "frames": int(fset.done.sum()),
                                         "seed": fset.attrs["seed"]}, "models": {}}
-        errors = _reading_errors(fset, f_read)
+        errors = _reading_errors(fset, f_read, noise) if with_frames else None
         for model, cal in cals.items():
             est, clamped = cal.forces(f_read)
             if fam == families[0]:
                 estimates[model] = est
             scores = _scores(est, f_truth, clamped, f_read, fs, ring, contact_min_n)
             if errors is not None:
-                cover = coverage(est, f_truth, cal.stderr(f_read, errors), where=f_truth[..., 2] > 0)
-                scores["coverage_90"] = {ax: round(float(c), 4) for ax, c in zip(("fx", "fy", "fz"), cover,
-                                                                                 strict=True)}
+                for key, c in (("coverage_90", validated.get(model, cal)), ("coverage_90_fit_residuals", cal)):
+                    if c is not None:
+                        cover = coverage(est, f_truth, c.stderr(f_read, errors), where=f_truth[..., 2] > 0)
+                        scores[key] = {ax: round(float(v), 4) for ax, v in zip(("fx", "fy", "fz"), cover,
+                                                                               strict=True)}
             out["families"][fam]["models"][model] = scores
     out["models"] = out["families"][families[0]]["models"]
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
@@ -167,16 +197,56 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     return out
 
 
-def _reading_errors(fset, readings):
-    """The readings' covariance from the set's stored frames and CCD, or None for a set without frames."""
+def _reading_errors(fset, readings, noise):
+    """The readings' covariance from the set's stored frames and ``noise``, or None for a set without frames."""
     from optitact.pipeline import Pipeline
-    from optitact.uncertainty import PixelNoise, reading_errors
+    from optitact.uncertainty import reading_errors
 
     if not fset.attrs.get("keep_frames") or "frames" not in fset._group:
         print(f"optitact: bench accuracy: {fset.path} holds no frames; no coverage_90", file=sys.stderr)
         return None
     pipe = Pipeline(fset.sensor, fset.camera, baseline=fset.array("baseline"), **fset.attrs.get("pipeline", {}))
-    return reading_errors(pipe, fset.array("frames")[fset.done], PixelNoise.from_ccd(fset.ccd), readings)
+    return reading_errors(pipe, fset.array("frames")[fset.done], noise, readings)
+
+
+def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
+    """The pixel noise of a set's frames, measured as a user measures a camera's (a ``PixelNoise``).
+
+    Two-stage frames carry the CCD's noise alone (:meth:`PixelNoise.from_ccd`).
+    Path-traced frames also carry the renderer's Monte Carlo noise, which
+    grows with the signal like shot noise: the photon-transfer fit of
+    :meth:`PixelNoise.estimate` measures both together, from the set's
+    no-load stack and ``repeats`` renders of one of its loads (``frame``)
+    with other seeds (render and CCD), made as the set made its frames.
+
+    Returns
+    -------
+    noise : PixelNoise
+    info : dict
+        How it was obtained, for the bench's JSON.
+    """
+    from optitact.calib.sets import FrameMaker
+    from optitact.uncertainty import PixelNoise
+
+    mode = fset.attrs.get("render_mode", "full")
+    if mode == "two_stage":
+        noise = PixelNoise.from_ccd(fset.ccd)
+        return noise, {"from": "the CCD model (two-stage frames: no Monte Carlo noise)",
+                       "dn_per_electron": noise.dn_per_electron}
+    maker = FrameMaker(sensor=fset.sensor, camera=fset.camera, ccd=fset.ccd,
+                       pipeline_options=fset.attrs.get("pipeline", {}), baseline=fset.array("baseline"),
+                       background=np.asarray(fset.array("baseline_radiance"), np.float64).mean(axis=0),
+                       render_mode=mode, spp=int(fset.attrs["spp"]), variant=None, table=None,
+                       keep_frames=True)
+    forces = fset.forces()[frame]
+    seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 77, frame]).generate_state(repeats)
+    pressed = np.stack([maker(forces, int(s))["frame"] for s in seeds])
+    noise = PixelNoise.estimate(fset.array("baseline"), pressed)
+    ccd = PixelNoise.from_ccd(fset.ccd)
+    return noise, {"from": f"PixelNoise.estimate: the set's {len(fset.array('baseline'))} no-load frames and "
+                           f"{repeats} renders of its frame {frame} with other seeds",
+                   "dn_per_electron": round(noise.dn_per_electron, 6), "read_sigma": round(noise.read_sigma, 4),
+                   "ccd_dn_per_electron": round(ccd.dn_per_electron, 6)}
 
 
 def _scores(est, truth, clamped, readings, fs, ring, contact_min_n) -> dict:

@@ -118,7 +118,9 @@ def _one_load(sensor, camera, forces, baseline, pipes, *, n_frames, repeats, n_r
                       background=np.zeros(camera.shape))
     ccd = CCD()
     frames = np.stack([ccd.expose(radiance, seed=seed + 100 + k) for k in range(n_frames)])
-    long = np.concatenate([frames] * max(1, -(-64 // n_frames)))  # a long stack: >= 64 frames
+    # a long stack: >= 64 frames and >= 2**25 pixels (so that a thread's share is milliseconds of work)
+    n_min = max(64, -(-2**25 // frames[0].size))
+    long = np.concatenate([frames] * max(1, -(-n_min // n_frames)))
     n_long, n_threads = len(long), all_threads.threads_for(len(long))
     thr = int(np.ceil(fast.threshold + baseline.mean()))
     bounds = np.linspace(0, n_long, n_threads + 1).astype(int)
@@ -211,7 +213,8 @@ def bench_pipeline(sizes=((320, 240), (640, 480), (1280, 960), (1920, 1440)), *,
         (``*_cpu_us``), of ``fast`` (frame by frame, one thread), ``numpy``
         (the NumPy fallback, frame by frame), ``floor`` (``np.count_nonzero(frame
         > t)`` frame by frame), ``batch_1thread`` and ``batch_threads`` (one
-        call on a stack of at least 64 frames, one thread and every core),
+        call on a stack of at least 64 frames and 2**25 pixels (437 frames
+        of 320x240), one thread and every core),
         ``floor_1thread`` and ``floor_threads`` (the floor over the same
         stack, one thread and split across as many threads: the bound on
         the threads' speed-up), ``reference``; the ratios ``fast_over_floor``,

@@ -1,0 +1,114 @@
+"""The calibration's own error measured on independent data (calib/error_model.py, Calibration.validated).
+
+Truth is a known error law: residuals drawn as N(0, s^2 + a^2 + (b Fz)^2) beside a known noise s.
+The fit must recover (a, b), the validated calibration's error bars must then cover 90 % of
+fresh draws, and the model must survive the JSON round trip.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from optitact.calib import Calibration, default_calibration
+from optitact.calib.error_model import MIN_SAMPLES, ErrorModel
+from optitact.errors import InputError, ShapeError
+from optitact.readings import Readings
+from optitact.uncertainty import coverage
+
+FLOOR = np.array([0.001, 0.002, 0.003])
+RELATIVE = np.array([0.006, 0.0, 0.012])
+
+
+def draw(rng, n, noise_max=0.002):
+    fz = rng.uniform(0.0, 1.0, n)
+    s = rng.uniform(0.0, noise_max, (n, 3))
+    sigma = np.sqrt(s**2 + FLOOR**2 + (RELATIVE * fz[:, None]) ** 2)
+    return rng.normal(size=(n, 3)) * sigma, s, fz, sigma
+
+
+def test_fit_recovers_a_known_error_law():
+    res, s, fz, _ = draw(np.random.default_rng(0), 20000)
+    m = ErrorModel.fit(res, s, fz, source="synthetic")
+    np.testing.assert_allclose(m.floor_n, FLOOR, rtol=0.08, atol=0)
+    np.testing.assert_allclose(m.relative, RELATIVE, rtol=0.05, atol=0.0006)
+    assert m.samples == 20000 and m.source == "synthetic"
+
+
+def test_fitted_error_bars_cover_ninety_percent_of_fresh_draws():
+    res, s, fz, _ = draw(np.random.default_rng(1), 5000)
+    m = ErrorModel.fit(res, s, fz)
+    new, s2, fz2, _ = draw(np.random.default_rng(2), 20000)
+    se = np.sqrt(s2**2 + m.sigma(fz2) ** 2)
+    np.testing.assert_allclose(coverage(new, np.zeros_like(new), se), 0.9, rtol=0, atol=0.01)
+
+
+def test_noise_is_not_counted_twice():
+    """Residuals that are all noise leave (nearly) no model error."""
+    rng = np.random.default_rng(3)
+    s = rng.uniform(0.001, 0.003, (20000, 3))
+    m = ErrorModel.fit(rng.normal(size=s.shape) * s, s, rng.uniform(0, 1, 20000))
+    assert np.all(m.floor_n < 4e-4) and np.all(m.relative < 6e-4)  # against 1-3e-3 of noise
+
+
+def test_fit_refuses_bad_inputs():
+    res, s, fz, _ = draw(np.random.default_rng(4), 50)
+    with pytest.raises(InputError, match=f"at least {MIN_SAMPLES}"):
+        ErrorModel.fit(res[:5], s[:5], fz[:5])
+    with pytest.raises(ShapeError, match=r"\(n, 3\)"):
+        ErrorModel.fit(res[:, :2], s, fz)
+    bad = res.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(InputError, match="finite"):
+        ErrorModel.fit(bad, s, fz)
+    with pytest.raises(InputError, match=">= 0"):
+        ErrorModel([-1.0, 0.0, 0.0], [0.0, 0.0, 0.0], samples=3)
+
+
+@pytest.fixture(scope="module")
+def cal():
+    return default_calibration()
+
+
+def readings(cal, rng, n):
+    E = len(cal.g)
+    G = cal.g_max * rng.uniform(0.2, 0.7, (n, E))
+    u = rng.normal(0.0, 0.2, (n, E, 2)) * cal.u_max[:, None]
+    return Readings(G, u, np.ones((n, E), bool), np.zeros((n, E), bool))
+
+
+def test_validated_calibration_measures_its_error_and_keeps_it_in_its_file(cal, tmp_path):
+    """Truth = estimate minus errors of a known law: validated() recovers it, stderr() uses it."""
+    rng = np.random.default_rng(5)
+    r = readings(cal, rng, 120)
+    est = cal.forces(r)[0]
+    sigma = np.sqrt(FLOOR**2 + (RELATIVE * est[..., 2:]) ** 2)
+    truth = est - rng.normal(size=est.shape) * sigma
+    v = cal.validated(r, truth, source="known law")
+    assert v.error_model.source == "known law" and v.error_model.samples == 120 * len(cal.g)
+    np.testing.assert_allclose(v.error_model.floor_n, FLOOR, rtol=0.25, atol=0)
+    np.testing.assert_allclose(v.error_model.relative, RELATIVE, rtol=0.1, atol=0.001)
+    assert cal.error_model is None and v.g is cal.g  # the curves are kept, the original unchanged
+    # fresh frames of the same law: the error bars cover 90 %
+    r2 = readings(cal, rng, 300)
+    est2 = cal.forces(r2)[0]
+    truth2 = est2 - rng.normal(size=est2.shape) * np.sqrt(FLOOR**2 + (RELATIVE * est2[..., 2:]) ** 2)
+    np.testing.assert_allclose(coverage(est2, truth2, v.stderr(r2)), 0.9, rtol=0, atol=0.02)
+    assert np.all(np.abs(coverage(est2, truth2, cal.stderr(r2)) - 0.9) > 0.05)  # the fit residuals are not
+    back = Calibration.load(v.save(tmp_path / "cal.json"))
+    np.testing.assert_array_equal(back.error_model.floor_n, v.error_model.floor_n)
+    np.testing.assert_array_equal(back.stderr(r2), v.stderr(r2))
+
+
+def test_validated_refuses_mismatched_forces(cal):
+    r = readings(cal, np.random.default_rng(6), 3)
+    with pytest.raises(ShapeError, match=r"\(T, E, 3\)"):
+        cal.validated(r, np.zeros((3, len(cal.g), 2)))
+
+
+def test_malformed_error_model_in_a_file_is_refused(cal):
+    d = cal.to_dict()
+    d["error_model"] = {"floor_n": {"fx": "0.1", "fy": 0, "fz": 0}, "relative": {"fx": 0, "fy": 0, "fz": 0},
+                        "samples": 10}
+    with pytest.raises(InputError, match="error_model"):
+        Calibration.from_dict(d)
