@@ -77,8 +77,11 @@ def kernel_args(pipe, dtype: np.dtype) -> tuple:
         watched = np.column_stack([fold.pixel[watch], fold.label[watch]]).astype(np.intp).reshape(-1, 2)
         params = np.array([sat, G_MIN, 0.0 if dtype.kind != "f" else 1.0])
         floor = np.ascontiguousarray(pipe.floor, np.float64)
-        pipe._levels[key] = (fold.label.astype(np.intp), more, np.ascontiguousarray(fent), watched, cpix,
-                             centry, clevel, params, floor)
+        # the smallest index types: the lit pixels' look-ups stay in cache
+        label = fold.label.astype(np.uint8 if pipe.grids.n_elements <= 255 else np.int32)
+        centry = centry.astype(np.int32) if len(fold.pixel) < 2**31 else centry
+        pipe._levels[key] = (label, more, np.ascontiguousarray(fent), watched, cpix, centry, clevel, params,
+                             floor)
     return pipe._levels[key]
 
 

@@ -422,3 +422,25 @@ def test_bench_accuracy_families_with_a_validation_set(small_set):
             assert all(0.0 <= c <= 1.0 for c in scores["coverage_90"].values())
             assert set(scores["coverage_90_fit_residuals"]) == {"fx", "fy", "fz"}
     assert out["worst_family"]["coupled"]["fz"][0] in ("independent", "single")
+
+
+@pytest.mark.render
+def test_calibrate_fit_with_a_validation_set(small_set, tmp_path, capsys):
+    """--validation measures the calibration's error on a set the fit did not see and keeps it in the file."""
+    val = generate(tmp_path / "v.zarr", frames=4, camera=SMALL, spp=16, seed=3, progress=False,
+                   render_mode="pixels")
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", "fit", str(small_set.path), "--out", str(out),
+                 "--validation", str(val.path)]) == 0
+    assert "error measured on" in capsys.readouterr().err
+    cal = Calibration.load(out)
+    m = cal.error_model
+    assert m.samples == int(np.sum(val.forces()[..., 2] > 0)) and "v.zarr" in m.source
+    est = cal.forces(val.readings())[0]
+    loaded = val.forces()[..., 2] > 0
+    rms = np.sqrt(np.mean((est - val.forces())[loaded] ** 2, axis=0))
+    # the measured error is the validation residuals' size (within what a 2-parameter law leaves)
+    np.testing.assert_allclose(np.sqrt(np.mean(m.sigma(est[..., 2][loaded]) ** 2, axis=0)), rms, rtol=0.35)
+    assert main(["calibrate", "fit", str(small_set.path), "--out", str(out), "--validation",
+                 str(small_set.path)]) == 2
+    assert "did not see" in capsys.readouterr().err

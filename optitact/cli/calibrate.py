@@ -93,6 +93,12 @@ def add_parsers(sub) -> None:
     fitp.add_argument("--joint", action="store_true",
                       help="also fit the cross-talk between elements (the joint inversion: every element's "
                            "force solved with its neighbours'); the set should be a --pattern blend one")
+    fitp.add_argument("--validation", type=Path, default=None, metavar="VAL.zarr",
+                      help="a finished set the fit does not see (other seeds; rendered like the frames the "
+                           "calibration will read, e.g. --render-mode pixels): the calibration's own error is "
+                           "measured on it (a floor plus a part growing with Fz, per axis) and kept in the "
+                           "file for the error bars (process --stderr); it holds the validation frames' noise "
+                           "too, so give --dn-per-electron to process only for noisier frames")
     fitp.add_argument("--partial", action="store_true",
                       help="fit the finished frames of an incomplete set (a killed or running generate); "
                            "without it an incomplete set is refused with how many frames are done")
@@ -177,6 +183,8 @@ def run_fit(args) -> int:
     if args.joint and args.set is None:
         raise InputError("--joint fits a calibration set (it needs every element's force in every frame)")
     cal = fit(args.set, model=args.model or "coupled", partial=args.partial, joint=args.joint)
+    if args.validation is not None:
+        cal = _validated(cal, args.set, args.validation)
     cal.save(args.out)
     r = cal.residuals
     prov = cal.provenance
@@ -193,6 +201,28 @@ def run_fit(args) -> int:
         print(f"optitact: wrote {args.plot}", file=sys.stderr)
     print(args.out)
     return 0
+
+
+def _validated(cal, set_path, val_path):
+    """``cal`` with its error measured on the finished set ``val_path`` (never the fitted set itself)."""
+    from optitact.calib import CalibrationSet
+
+    vs = CalibrationSet(val_path)
+    if Path(val_path).resolve() == Path(set_path).resolve() or vs.attrs["seed"] == cal.provenance.get("seed"):
+        raise InputError(f"--validation must be a set the fit did not see (another seed), got {val_path}")
+    if not vs.complete:
+        raise InputError(f"--validation set {val_path} is not finished ({int(vs.done.sum())} of "
+                         f"{len(vs.done)} frames done)")
+    cal.check(vs.sensor, vs.camera)
+    mode = vs.attrs.get("render_mode", "full")
+    out = cal.validated(vs.readings(), vs.forces(),
+                        source=f"{int(vs.done.sum())} frames of {Path(val_path).name} ({mode}, "
+                               f"{vs.attrs['spp']} spp, seed {vs.attrs['seed']}), noise included")
+    m = out.error_model
+    print(f"optitact: error measured on {m.samples} validation samples: floor Fx {m.floor_n[0]:.4f}, Fy "
+          f"{m.floor_n[1]:.4f}, Fz {m.floor_n[2]:.4f} N, plus Fx {m.relative[0]:.4f}, Fy {m.relative[1]:.4f}, "
+          f"Fz {m.relative[2]:.4f} N per N of Fz", file=sys.stderr)
+    return out
 
 
 def _run_fit_presses(args) -> int:
