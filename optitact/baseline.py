@@ -83,8 +83,6 @@ def impulse_floor(impulses: tuple[np.ndarray, np.ndarray] | None, fold) -> np.nd
     one-frame baselines get it: a stack's temporal noise map stands for
     its own frames' impulses.
     """
-    import cv2
-
     n_regions = len(fold.n_pixels)
     if impulses is None or not impulses[0].any():
         return np.zeros(n_regions)
@@ -92,7 +90,7 @@ def impulse_floor(impulses: tuple[np.ndarray, np.ndarray] | None, fold) -> np.nd
     hits = rate > 0
     # Their density, pooled over a neighbourhood of several regions: a region's own few impulses
     # would be a noisy count (its expectation, not its draw, bounds the next frame's).
-    density = cv2.GaussianBlur(rate, (0, 0), max(rate.shape) / 20.0, borderType=cv2.BORDER_REFLECT_101)
+    density = _smooth(rate, max(rate.shape) / 20.0)
     key = np.unique(fold.label.astype(np.int64) * rate.size + fold.pixel)  # each region pixel once
     label, pixel = np.divmod(key, rate.size)
     count = np.bincount(label, density.reshape(-1)[pixel], minlength=n_regions)
@@ -101,6 +99,25 @@ def impulse_floor(impulses: tuple[np.ndarray, np.ndarray] | None, fold) -> np.nd
     cdf = poisson_cdf(k, count)  # Poisson CDF of each region's impulse count
     most = np.argmax(cdf >= 1.0 - IMPULSE_FALSE_CONTACT, axis=1)
     return np.where(count > 0, most, 0) * tall * fold.pixel_area
+
+
+def _smooth(image: np.ndarray, sigma: float) -> np.ndarray:
+    """A Gaussian blur of width ``sigma`` (px) computed on a copy shrunk to about 4 pixels per sigma.
+
+    Box-averaging by ``f`` pixels, blurring by ``sigma / f`` and interpolating
+    back widens the kernel by about 0.5 % (variances ``f^2 / 12`` and
+    ``f^2 / 6`` beside ``sigma^2``), at ``1 / f^2`` of the work of the full-size
+    blur (0.44 s of a 1280x960 baseline's set-up otherwise).
+    """
+    import cv2
+
+    h, w = image.shape
+    f = max(1, int(sigma // 4))
+    if f == 1:
+        return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT_101)
+    small = cv2.resize(image, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma / f, borderType=cv2.BORDER_REFLECT_101)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 def poisson_cdf(k: np.ndarray, mean: np.ndarray) -> np.ndarray:

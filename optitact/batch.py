@@ -46,9 +46,10 @@ from .steps import check_frames
 __all__ = ["SHORT_RUN_PIXELS", "ProcessedFrames", "process_files"]
 
 #: A run of fewer frames x pixels than this takes the NumPy kernel when the compiled one is not
-#: loaded yet (``kernel="auto"``): loading numba costs ~0.6-0.9 s of CPU, what the compiled kernel
-#: saves over NumPy on ~6,000 frames of 640x480. The readings are the same bit for bit.
-SHORT_RUN_PIXELS = 2e9
+#: loaded yet (``kernel="auto"``): loading numba costs ~0.3 s of CPU, what the compiled kernel
+#: saves over NumPy on ~1,000 frames of 640x480 or ~300 of 1280x960 (measured on two-stage frames
+#: read from MJPG, every element loaded). The readings are the same bit for bit.
+SHORT_RUN_PIXELS = 3e8
 
 
 @dataclass(frozen=True, eq=False)
