@@ -18,6 +18,7 @@ import pytest
 
 import optitact
 from optitact.batch import process_files
+from optitact.readings import Readings
 from optitact.cli import main
 from optitact.errors import InputError
 
@@ -362,8 +363,10 @@ def test_process_writes_standard_errors_that_grow_with_the_noise(tmp_path):
     model = process_files([tmp_path / "rec.npy"], calibration=cal, noise="model", batch=4)
     contact = quiet.readings.contact
     assert contact.any()
-    np.testing.assert_allclose(model.stderr[~contact], np.broadcast_to(cal.model_error(), contact.shape + (3,))
-                               [~contact], rtol=1e-12)
+    # no contact: the model error at Fz = 0 (the measured error model's floor, as for an empty frame)
+    floor = cal.stderr(Readings.empty(len(cal.g)))
+    np.testing.assert_allclose(model.stderr[~contact], np.broadcast_to(floor, contact.shape + (3,))[~contact],
+                               rtol=1e-12)
     assert np.all(loud.stderr[contact] > quiet.stderr[contact])
     assert np.all(quiet.stderr[contact] >= model.stderr[contact])
     process_files([tmp_path / "rec.npy"], calibration=cal, noise="model", out=tmp_path / "t.csv", batch=4)

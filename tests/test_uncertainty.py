@@ -163,8 +163,12 @@ def test_model_error_adds_in_quadrature_and_stacks_work(cal):
     r = _readings(cal, 4, n=3)
     cov = _cov(r)
     noise = cal.stderr(r, ReadingErrors(cov), model_error=False)
-    both = cal.stderr(r, ReadingErrors(cov))
-    m = cal.model_error()
+    # the shipped calibration's error measured on validation frames, at each estimated Fz
+    measured = cal.error_model.sigma(cal.forces(r)[0][..., 2])
+    np.testing.assert_allclose(cal.stderr(r, ReadingErrors(cov)) ** 2, noise**2 + measured**2, rtol=1e-12)
+    fitted = replace(cal, error_model=None)  # without one: the fit residuals
+    both = fitted.stderr(r, ReadingErrors(cov))
+    m = fitted.model_error()
     np.testing.assert_allclose(both**2, noise**2 + m**2, rtol=1e-12)
     assert m.shape == (41, 3) and np.all(m >= np.stack([cal.residuals[k] for k in ("fx", "fy", "fz")], -1))
     one = cal.stderr(r[1], ReadingErrors(cov[1]), model_error=False)

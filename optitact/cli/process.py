@@ -81,8 +81,10 @@ def add_parsers(sub) -> None:
                       help="with --calibration: save a force-field plot of the last frame")
     proc.add_argument("--stderr", action="store_true",
                       help="with --calibration: also write each force's standard error (fx_se, fy_se, fz_se, "
-                           "N): the calibration's own model error, plus each frame's shot and read noise "
-                           "propagated through the calibration when --dn-per-electron is given")
+                           "N): the calibration's own model error (measured on validation frames where its "
+                           "file has it: calibrate fit --validation; that holds those frames' noise too), plus "
+                           "each frame's shot and read noise propagated through the calibration when "
+                           "--dn-per-electron is given")
     proc.add_argument("--dn-per-electron", type=float, default=None, metavar="G",
                       help="with --stderr: the camera's conversion gain (grey levels per electron; "
                            "optitact.uncertainty.PixelNoise.estimate measures it from a no-load and a "
