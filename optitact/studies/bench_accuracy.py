@@ -278,7 +278,11 @@ TARGET_PCT_FS = {"fx": 1.0, "fy": 1.0, "fz": 0.5}
 
 
 def _plot_families(out: dict, path):
-    """RMSE (% FS) per family, one panel per axis, one bar per model, with the targets."""
+    """RMSE (% FS) per family, one panel per axis, one bar per model, with the targets; and the coverage.
+
+    A fourth panel (when the held-out sets kept their frames) shows, per family and
+    axis, the fraction of true forces inside the last model's 90 % intervals.
+    """
     from optitact._optional import require
     from optitact.io import atomic_write_png_figure
 
@@ -287,11 +291,13 @@ def _plot_families(out: dict, path):
 
     fams = list(out["families"])
     models = list(out["families"][fams[0]]["models"])
-    fig = Figure(figsize=(15, 4.8))
-    axes = fig.subplots(1, 3)
+    last = models[-1]
+    with_coverage = "coverage_90" in out["families"][fams[0]]["models"][last]
+    fig = Figure(figsize=(20 if with_coverage else 15, 4.8))
+    axes = fig.subplots(1, 4 if with_coverage else 3)
     width = 0.8 / len(models)
     x = np.arange(len(fams))
-    for ax, axis in zip(axes, ("fx", "fy", "fz"), strict=True):
+    for ax, axis in zip(axes, ("fx", "fy", "fz"), strict=False):
         for i, model in enumerate(models):
             vals = [out["families"][f]["models"][model][f"{axis}_rmse_pct_fs"] for f in fams]
             ax.bar(x + (i - (len(models) - 1) / 2) * width, vals, width, label=model)
@@ -302,6 +308,20 @@ def _plot_families(out: dict, path):
         ax.set_ylabel(f"{axis.upper()} RMSE (% of full scale)")
         ax.set_title(f"{axis.upper()}: held-out error per load family")
         ax.legend(fontsize=8, ncol=2, loc="upper center")
+    if with_coverage:
+        ax = axes[3]
+        w = 0.8 / 3
+        for i, axis in enumerate(("fx", "fy", "fz")):
+            vals = [out["families"][f]["models"][last]["coverage_90"][axis] for f in fams]
+            ax.bar(x + (i - 1) * w, vals, w, label=axis.upper(), color=f"C{i + 4}")
+        ax.axhspan(0.88, 0.92, color="0.85", zorder=0, label="0.88-0.92")
+        ax.axhline(0.9, color="k", ls=":", lw=1)
+        ax.set_xticks(x)
+        ax.set_xticklabels(fams, rotation=30, ha="right")
+        ax.set_ylim(0.5, 1.08)
+        ax.set_ylabel("fraction of true forces inside")
+        ax.set_title(f"{last}: 90 % intervals per load family")
+        ax.legend(fontsize=8, ncol=4, loc="upper center")
     fig.suptitle(f"calibration set: {out['calibration_set']['path'].rsplit('/', 1)[-1]}; held-out "
                  f"{out['test_set']['render_mode']} at {out['test_spp']} spp", fontsize=10)
     fig.tight_layout()
