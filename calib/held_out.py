@@ -19,6 +19,7 @@ from optitact._validate import check_type, integer
 from optitact.errors import InputError, OptitactWarning
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
+from optitact.uncertainty import coverage
 
 from .fit import Calibration
 from .gauge import check_presses, measure_presses
@@ -56,7 +57,11 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
         vector in N, worst first); ``unloaded`` (``samples``, ``rmse_n`` per
         axis of the estimates where nothing was pressed, and
         ``contact_rate``, how often the pipeline saw contact there);
-        ``clamped_rate`` of the pressed samples.
+        ``clamped_rate`` of the pressed samples; ``coverage_90`` per axis:
+        the fraction of pressed samples whose true force lies inside the
+        calibration's 90 % interval (its model error, as ``process
+        --stderr`` gives it; near 0.9 when the error bars are honest, and
+        :meth:`Calibration.validated` measures them from presses like these).
     """
     check_type(calibration, Calibration, "calibration")
     worst = integer(worst, "worst", minimum=0)
@@ -100,6 +105,8 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
                                                else np.zeros(3)).tolist(), strict=True)),
                      "contact_rate": float(readings.contact[free].mean()) if free.any() else 0.0},
         "clamped_rate": float(clamped[pressed].mean()),
+        "coverage_90": dict(zip(axes, coverage(est, f, calibration.stderr(readings), where=pressed).tolist(),
+                                strict=True)),
     }
 
 

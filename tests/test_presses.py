@@ -319,6 +319,22 @@ def test_cli_fit_and_test_on_rendered_presses(tmp_path, capsys):
     for k in ("fx", "fy", "fz"):
         assert mine["rmse_pct_fs"][k] < 3.0 and mine["rmse_pct_fs"][k] < shipped["rmse_pct_fs"][k], k
     assert (tmp_path / "fit.png").stat().st_size > 0 and (tmp_path / "err.png").stat().st_size > 0
+    # the report says how many true forces the 90 % intervals hold; --validated measures the error from
+    # these presses and writes the calibration with it: its own presses then fall inside as they should
+    assert set(mine["coverage_90"]) == {"fx", "fy", "fz"}
+    assert all(0 <= c <= 1 for c in mine["coverage_90"].values())
+    checked = tmp_path / "checked.json"
+    assert main(["calibrate", "test", "--frames", str(held), "--forces", str(tmp_path / "held.csv"),
+                 "--calibration", str(out), "--json", "--validated", str(checked)]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["validated"]["error_model"]["samples"] == 3 * N_EL and "held.csv" in rep["validated"][
+        "error_model"]["source"]
+    again = Calibration.load(checked)
+    assert again.error_model.samples == 3 * N_EL and again.fingerprint == cal.fingerprint
+    assert main(["calibrate", "test", "--frames", str(held), "--forces", str(tmp_path / "held.csv"),
+                 "--calibration", str(checked), "--json"]) == 0
+    cover = json.loads(capsys.readouterr().out)["coverage_90"]
+    assert all(0.75 <= c <= 1.0 for c in cover.values()), cover  # in-sample: near 0.9 (123 samples)
     # from scratch 9 presses per element fit too; the readable report goes to stderr
     assert main(["calibrate", "fit", "--frames", str(train), "--forces", str(tmp_path / "gauge.csv"),
                  "--out", str(tmp_path / "scratch.json")]) == 0
@@ -326,6 +342,7 @@ def test_cli_fit_and_test_on_rendered_presses(tmp_path, capsys):
                  "--calibration", str(tmp_path / "scratch.json")]) == 0
     err = capsys.readouterr().err
     assert "fitted coupled from scratch" in err and "ring 3: 48 presses" in err and "worst elements" in err
+    assert "90 % intervals hold" in err
     # a gauge CSV naming a frame that is not there: a one-line error, exit 2
     (tmp_path / "bad.csv").write_text("frame,element,fx,fy,fz\npress_099.png,0,0,0,0.5\n")
     assert main(["calibrate", "fit", "--frames", str(train), "--forces", str(tmp_path / "bad.csv"),

@@ -122,6 +122,10 @@ def add_parsers(sub) -> None:
                       help="the calibration to test ('default': the shipped one)")
     _presses_arguments(test, required=True)
     test.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
+    test.add_argument("--validated", type=Path, default=None, metavar="OUT.json",
+                      help="also write the calibration with its error measured on these presses (a floor plus "
+                           "a part growing with Fz, per axis; kept for process --stderr), e.g. on presses of "
+                           "your own sensor that the calibration was not fitted on")
     test.set_defaults(run=run_test)
 
 
@@ -291,6 +295,16 @@ def run_test(args) -> int:
                         baseline_frames=n_base, progress=True)
     rep = press_report(cal, p.readings, p.forces, p.pressed)
     rep["calibration"] = str(args.calibration)
+    if args.validated is not None:
+        names = sorted({Path(str(f)).name for f in args.frames})
+        source = (f"{rep['presses']} presses of {Path(str(args.forces)).name} on "
+                  f"{', '.join(names[:3])}{' ...' if len(names) > 3 else ''}, noise included")
+        forces = np.where(p.pressed[..., None], p.forces, 0.0)  # only the gauge's presses count
+        out = cal.validated(p.readings, forces, source=source)
+        out.save(args.validated)
+        rep["validated"] = {"path": str(args.validated), "error_model": out.error_model.to_dict()}
+        print(f"optitact: wrote {args.validated} (the calibration with its error measured on "
+              f"{out.error_model.samples} presses)", file=sys.stderr)
     if args.plot is not None:
         from optitact.calib.plots import plot_errors
 
@@ -310,6 +324,8 @@ def run_test(args) -> int:
               for r in rep["per_ring"] if r["rmse_n"] is not None]
     lines.append("worst elements: " + ", ".join(f"{w['element']} ({w['rms_error_n']:.4f} N)"
                                                  for w in rep["worst_elements"]))
+    lines.append("90 % intervals hold " + ", ".join(f"{k.capitalize()} {v:.2f}" for k, v in
+                                                    rep["coverage_90"].items()) + " of the true forces")
     un = rep["unloaded"]
     lines.append(f"unloaded: {un['samples']} samples, RMSE " + ", ".join(
         f"{k.capitalize()} {v:.4f}" for k, v in un["rmse_n"].items()) + f" N, contact seen in "
