@@ -48,7 +48,8 @@ import numpy as np
 
 from optitact.errors import InputError
 
-__all__ = ["MODELS", "MIN_RELATIVE_SPREAD", "FZ_FLOOR", "ElementCurves", "fit_element", "zero_shear_centroid"]
+__all__ = ["MODELS", "MIN_RELATIVE_SPREAD", "FZ_FLOOR", "ElementCurves", "fit_element", "grey_for_force",
+           "zero_shear_centroid"]
 
 MODELS = ("ohka", "coupled")
 #: Smallest relative spread (``ptp / max |x|``) of G, u and Fz a fit accepts; a narrower range
@@ -240,3 +241,27 @@ def fit_element(G: np.ndarray, u: np.ndarray, fe: np.ndarray, *, model: str, lev
     rms_fy = math.sqrt(np.mean((shear[:, 1] - fe[:, 1]) ** 2))
     return ElementCurves(g=g, gu=gu, f=f, u0=u0, g_scale=g_scale, u_scale=u_scale, g_max=g_max, u_max=u_max,
                          rms_fx=rms_fx, rms_fy=rms_fy, rms_fz=rms_fz, n=len(G))
+
+
+def grey_for_force(cal, fz: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The G (T, E) at which a calibration ``cal``'s normal curve of each element gives ``fz`` at shift ``u``.
+
+    NaN where no G in ``[0, 2 g_max]`` does (bisection: the curve rises with G on the fitted range).
+    """
+    radius = np.hypot(u[..., 0], u[..., 1])
+    scale = np.divide(np.broadcast_to(cal.u_max, radius.shape), radius, out=np.ones_like(radius),
+                      where=radius > cal.u_max)
+    t = u * scale[..., None] / cal.u_scale[:, None]
+    q = np.sum(t * cal.gu, axis=-1)
+
+    def curve(s):
+        return np.einsum("...ek,ek->...e", g_design(s), cal.g) + s * q
+
+    hi_s = np.broadcast_to(2.0 * cal.g_max / cal.g_scale, fz.shape).copy()
+    lo, hi = np.zeros_like(hi_s), hi_s
+    bracketed = (curve(lo) <= fz) & (curve(hi) >= fz)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        below = curve(mid) < fz
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return np.where(bracketed, 0.5 * (lo + hi) * cal.g_scale, np.nan)

@@ -15,16 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact._validate import check_keys
-from optitact.camera import camera_from_dict
+from optitact._validate import check_keys, check_type
+from optitact.camera import Camera, camera_from_dict
 from optitact.ccd import IntensityScale
 from optitact.errors import InputError
+from optitact.io import json_fingerprint
 from optitact.sensor import DomeSensor
 
 from .curves import G_TERMS, MODELS, g_design
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "MAX_FILE_BYTES", "PIPELINE_KEYS", "CalibrationMismatchError",
-           "from_document", "numbers", "read_document"]
+           "fingerprint", "from_document", "numbers", "read_document"]
 
 SCHEMA = "optitact.calibration"
 SCHEMA_VERSION = 1
@@ -33,6 +34,41 @@ MAX_FILE_BYTES = 5_000_000
 #: Pipeline options a calibration file may hold.
 PIPELINE_KEYS = ("method", "filter", "filter_size", "noise_sigma", "k", "min_pixels", "saturation",
                  "radius", "grid_mm", "tail")
+
+
+def fingerprint(sensor: DomeSensor, camera: Camera, pipeline_options: dict,
+                intensity: IntensityScale | None = None) -> str:
+    """Short hash of the sensor, camera, pipeline options and intensity scale a calibration belongs to.
+
+    The default scale (8-bit, exposure 1, gain 1) is left out of the hash, so
+    that calibrations written before the scale was recorded keep their
+    fingerprint.
+    """
+    check_type(sensor, DomeSensor, "sensor")
+    check_type(camera, Camera, "camera")
+    doc = {"sensor": sensor.to_dict(), "camera": camera.to_dict(), "pipeline": _plain(pipeline_options)}
+    if intensity is not None and check_type(intensity, IntensityScale, "intensity") != IntensityScale():
+        doc["intensity"] = intensity.to_dict()
+    return json_fingerprint(doc, 16)
+
+
+def _plain(options: dict) -> dict:
+    """Pipeline options as plain JSON values (drops None, which means 'default')."""
+    return {k: v for k, v in sorted(options.items()) if v is not None and k != "baseline"}
+
+
+def _resolved(sensor: DomeSensor, camera: Camera, options: dict) -> dict:
+    """Pipeline options with the region geometry made explicit.
+
+    The default region radius and dewarp cell size are derived from the
+    sensor and camera; storing the values used keeps a calibration valid
+    even if a later version derives other defaults.
+    """
+    from optitact.pipeline import Pipeline
+
+    plain = _plain(options)
+    pipe = Pipeline(sensor, camera, **plain)
+    return plain | {"radius": pipe.grids.radius, "grid_mm": pipe.grids.grid_mm}
 
 
 class CalibrationMismatchError(InputError):

@@ -11,20 +11,20 @@ per axis, as a floor plus a part that grows with the load,
 
 fitted by maximum likelihood to the residuals beside the noise the readings
 carried (their propagated standard errors), so that noise is not counted
-twice. :meth:`optitact.calib.Calibration.validated` fits one;
+twice. :func:`validate` (:meth:`optitact.calib.Calibration.validated`) fits one;
 :meth:`~optitact.calib.Calibration.stderr` then adds it instead of the fit
 residuals.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from optitact.errors import InputError, ShapeError
 
-__all__ = ["MIN_SAMPLES", "ErrorModel"]
+__all__ = ["MIN_SAMPLES", "ErrorModel", "validate"]
 
 #: Fewest loaded element samples an error model is fitted from.
 MIN_SAMPLES = 20
@@ -166,3 +166,58 @@ class ErrorModel:
                        d["samples"], d.get("source", ""))
         except (KeyError, TypeError) as exc:
             raise InputError(f"calibration 'error_model' is malformed: {exc!r}") from None
+
+
+def validate(cal, readings, forces, errors=None, *, source: str = ""):
+    """``cal`` (a :class:`~optitact.calib.Calibration`) with its error measured on independent readings.
+
+    The curves stay as they are; the residuals of ``cal.forces`` on
+    readings the fit never saw (validation frames, or gauge presses of the
+    sensor in use) give an :class:`ErrorModel` (a floor plus a part growing
+    with Fz, per axis), fitted beside the readings' own noise, which
+    :meth:`~optitact.calib.Calibration.stderr` then adds instead of the fit
+    residuals. In-sample residuals miss what the calibration samples leave
+    out, so without this the error bars are too narrow wherever the
+    calibration is used on other frames.
+
+    Parameters
+    ----------
+    cal : Calibration
+    readings : Readings
+        Stack readings (T, E) of the validation frames.
+    forces : (T, E, 3) array_like
+        Their true element-local forces, N; samples with ``Fz > 0`` count.
+    errors : ReadingErrors, optional
+        The readings' covariance (:func:`optitact.uncertainty.reading_errors`),
+        propagated and set beside the residuals: pass it when the
+        calibration will be used with ``errors`` too (otherwise the model
+        error takes the frames' noise as well).
+    source : str
+        Where the validation data came from (kept in the file).
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    ShapeError
+        ``forces`` is not (T, E, 3) for stack readings of E elements.
+    InputError
+        Fewer than :data:`MIN_SAMPLES` loaded samples.
+    """
+    from . import propagation
+
+    cal._check(readings)
+    truth = np.asarray(forces, dtype=np.float64)
+    if not readings.is_stack or truth.shape != np.shape(readings.G) + (3,):
+        raise ShapeError(f"forces must have shape (T, E, 3) = {np.shape(readings.G) + (3,)} for stack "
+                         f"readings, got {truth.shape}")
+    est = cal.forces(readings)[0]
+    noise = (propagation.stderr(cal, readings, errors, with_model_error=False) if errors is not None
+             else np.zeros_like(est))
+    loaded = truth[..., 2] > 0
+    model = ErrorModel.fit((est - truth)[loaded], noise[loaded], est[..., 2][loaded],
+                           source=source or f"{len(truth)} validation frames")
+    return replace(cal, error_model=model)
+

@@ -32,57 +32,23 @@ from optitact._validate import check_type
 from optitact.camera import Camera
 from optitact.ccd import IntensityScale
 from optitact.errors import InputError, ShapeError
-from optitact.io import atomic_write_text, json_fingerprint
+from optitact.io import atomic_write_text
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
 from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
 from . import propagation
 from .crosstalk import CrossTalk, fit_crosstalk
-from .curves import G_TERMS, MODELS, fit_element, g_design, zero_shear_centroid
+from .curves import G_TERMS, MODELS, fit_element, g_design, grey_for_force, zero_shear_centroid
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
 from .document import PIPELINE_KEYS as PIPELINE_KEYS
-from .document import SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, from_document, read_document
-from .error_model import ErrorModel
+from .document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolved, fingerprint,
+                       from_document, read_document)
+from .error_model import ErrorModel, validate
 
 __all__ = ["MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "fit"]
 # MIN_RELATIVE_SPREAD, MAX_FILE_BYTES and PIPELINE_KEYS stay importable from here (re-exported above).
 
-
-
-def fingerprint(sensor: DomeSensor, camera: Camera, pipeline_options: dict,
-                intensity: IntensityScale | None = None) -> str:
-    """Short hash of the sensor, camera, pipeline options and intensity scale a calibration belongs to.
-
-    The default scale (8-bit, exposure 1, gain 1) is left out of the hash, so
-    that calibrations written before the scale was recorded keep their
-    fingerprint.
-    """
-    check_type(sensor, DomeSensor, "sensor")
-    check_type(camera, Camera, "camera")
-    doc = {"sensor": sensor.to_dict(), "camera": camera.to_dict(), "pipeline": _plain(pipeline_options)}
-    if intensity is not None and check_type(intensity, IntensityScale, "intensity") != IntensityScale():
-        doc["intensity"] = intensity.to_dict()
-    return json_fingerprint(doc, 16)
-
-
-def _plain(options: dict) -> dict:
-    """Pipeline options as plain JSON values (drops None, which means 'default')."""
-    return {k: v for k, v in sorted(options.items()) if v is not None and k != "baseline"}
-
-
-def _resolved(sensor: DomeSensor, camera: Camera, options: dict) -> dict:
-    """Pipeline options with the region geometry made explicit.
-
-    The default region radius and dewarp cell size are derived from the
-    sensor and camera; storing the values used keeps a calibration valid
-    even if a later version derives other defaults.
-    """
-    from optitact.pipeline import Pipeline
-
-    plain = _plain(options)
-    pipe = Pipeline(sensor, camera, **plain)
-    return plain | {"radius": pipe.grids.radius, "grid_mm": pipe.grids.grid_mm}
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,7 +213,7 @@ class Calibration:
                                camera=camera, pipeline_options=pipeline_options, model=model,
                                provenance=provenance, intensity=intensity)
 
-            ct, cal, info = fit_crosstalk(readings, f, sensor, curves, _grey_for_force)
+            ct, cal, info = fit_crosstalk(readings, f, sensor, curves, grey_for_force)
             return replace(cal, crosstalk=ct, provenance={**cal.provenance, "crosstalk_fit": info})
         g_c = np.zeros((n_el, G_TERMS))
         gu = np.zeros((n_el, 2))
@@ -361,8 +327,6 @@ class Calibration:
         >>> float(moved.g_scale[0] / cal.g_scale[0]), moved.provenance["transferred_from"] == cal.fingerprint
         (1.2, True)
         """
-        from dataclasses import replace
-
         check_type(sensor, DomeSensor, "sensor")
         check_type(camera, Camera, "camera")
         old = self.sensor
@@ -458,11 +422,12 @@ class Calibration:
         """The curves' own error per element and axis, (E, 3) N (:func:`.propagation.model_error`)."""
         return propagation.model_error(self)
 
-    def stderr(self, readings: Readings, errors=None, *, model_error: bool = True) -> np.ndarray:
+    def stderr(self, readings: Readings, errors=None, *, model_error: bool = True, forces=None) -> np.ndarray:
         """Standard errors of :meth:`forces`, (E, 3) or (T, E, 3) N (:func:`.propagation.stderr`).
 
         ``errors``: the readings' covariance (:func:`optitact.uncertainty.reading_errors`); None gives the
-        model error alone. ``model_error``: add it in quadrature (default).
+        model error alone. ``model_error``: add it in quadrature (default). ``forces``: :meth:`forces`'
+        estimates of these readings if already made.
 
         Examples
         --------
@@ -471,57 +436,14 @@ class Calibration:
         >>> se.shape, bool((se > 0).all())
         ((41, 3), True)
         """
-        return propagation.stderr(self, readings, errors, with_model_error=model_error)
+        return propagation.stderr(self, readings, errors, with_model_error=model_error, forces=forces)
 
     def validated(self, readings: Readings, forces, errors=None, *, source: str = "") -> Calibration:
-        """A copy with the calibration's error measured on independent readings of known forces.
+        """A copy with its error measured on independent readings of known forces.
 
-        The curves stay as they are; the residuals of :meth:`forces` on
-        readings the fit never saw (validation frames, or gauge presses of
-        the sensor in use) give an :class:`~optitact.calib.error_model.ErrorModel`
-        (a floor plus a part growing with Fz, per axis), fitted beside the
-        readings' own noise, which :meth:`stderr` then adds instead of the
-        fit residuals. In-sample residuals miss what the calibration
-        samples leave out, so without this the error bars are too narrow
-        wherever the calibration is used on other frames.
-
-        Parameters
-        ----------
-        readings : Readings
-            Stack readings (T, E) of the validation frames.
-        forces : (T, E, 3) array_like
-            Their true element-local forces, N; samples with ``Fz > 0`` count.
-        errors : ReadingErrors, optional
-            The readings' covariance (:func:`optitact.uncertainty.reading_errors`),
-            propagated and set beside the residuals: pass it when the
-            calibration will be used with ``errors`` too (otherwise the model
-            error takes the frames' noise as well).
-        source : str
-            Where the validation data came from (kept in the file).
-
-        Returns
-        -------
-        Calibration
-
-        Raises
-        ------
-        ShapeError
-            ``forces`` is not (T, E, 3) for stack readings of E elements.
-        InputError
-            Fewer than :data:`~optitact.calib.error_model.MIN_SAMPLES` loaded samples.
+        See :func:`optitact.calib.error_model.validate`.
         """
-        self._check(readings)
-        truth = np.asarray(forces, dtype=np.float64)
-        if not readings.is_stack or truth.shape != np.shape(readings.G) + (3,):
-            raise ShapeError(f"forces must have shape (T, E, 3) = {np.shape(readings.G) + (3,)} for stack "
-                             f"readings, got {truth.shape}")
-        est = self.forces(readings)[0]
-        noise = (propagation.stderr(self, readings, errors, with_model_error=False) if errors is not None
-                 else np.zeros_like(est))
-        loaded = truth[..., 2] > 0
-        model = ErrorModel.fit((est - truth)[loaded], noise[loaded], est[..., 2][loaded],
-                               source=source or f"{len(truth)} validation frames")
-        return replace(self, error_model=model)
+        return validate(self, readings, forces, errors, source=source)
 
     def apply(self, readings: Readings, errors=None):
         """A :class:`optitact.forces.ForceField` per frame (a list for stack readings).
@@ -532,7 +454,7 @@ class Calibration:
         from optitact.forces import ForceField
 
         f, clamped = self.forces(readings)
-        se = self.stderr(readings, errors)
+        se = self.stderr(readings, errors, forces=f)
         if readings.is_stack:
             return [ForceField(self.sensor, f[t], contact=readings.contact[t], clamped=clamped[t],
                                saturated=readings.saturated[t], stderr=se[t]) for t in range(len(f))]
@@ -672,27 +594,3 @@ def fit(calibration_set, *, model: str = "coupled", partial: bool = False, joint
                                        "design": cs.attrs["design"],
                                        "render_mode": cs.attrs.get("render_mode", "full")},
                            intensity=IntensityScale(bits=cs.ccd.bits), joint=joint)
-
-
-def _grey_for_force(cal: Calibration, fz: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """The G (T, E) at which ``cal``'s normal curve of each element gives ``fz`` at shift ``u``.
-
-    NaN where no G in ``[0, 2 g_max]`` does (bisection: the curve rises with G on the fitted range).
-    """
-    radius = np.hypot(u[..., 0], u[..., 1])
-    scale = np.divide(np.broadcast_to(cal.u_max, radius.shape), radius, out=np.ones_like(radius),
-                      where=radius > cal.u_max)
-    t = u * scale[..., None] / cal.u_scale[:, None]
-    q = np.sum(t * cal.gu, axis=-1)
-
-    def curve(s):
-        return np.einsum("...ek,ek->...e", g_design(s), cal.g) + s * q
-
-    hi_s = np.broadcast_to(2.0 * cal.g_max / cal.g_scale, fz.shape).copy()
-    lo, hi = np.zeros_like(hi_s), hi_s
-    bracketed = (curve(lo) <= fz) & (curve(hi) >= fz)
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        below = curve(mid) < fz
-        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
-    return np.where(bracketed, 0.5 * (lo + hi) * cal.g_scale, np.nan)

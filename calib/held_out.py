@@ -105,8 +105,8 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
                                                else np.zeros(3)).tolist(), strict=True)),
                      "contact_rate": float(readings.contact[free].mean()) if free.any() else 0.0},
         "clamped_rate": float(clamped[pressed].mean()),
-        "coverage_90": dict(zip(axes, coverage(est, f, calibration.stderr(readings), where=pressed).tolist(),
-                                strict=True)),
+        "coverage_90": dict(zip(axes, coverage(est, f, calibration.stderr(readings, forces=est),
+                                               where=pressed).tolist(), strict=True)),
     }
 
 
@@ -144,7 +144,7 @@ def press_curve(readings: Readings, forces, test_readings: Readings, test_forces
         report's ``rmse_pct_fs`` and ``rmse_n``, or ``{"refused": message}``
         where the fit is refused (from scratch below ``MIN_PRESSES_SCRATCH``).
     """
-    from .fit import _plain
+    from .document import _plain
 
     f = np.asarray(forces, dtype=np.float64)
     pressed = np.any(f != 0, axis=-1) if pressed is None else np.asarray(pressed, dtype=bool)

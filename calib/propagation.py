@@ -111,7 +111,7 @@ def model_error(cal) -> np.ndarray:
     return rms * np.sqrt(dof)
 
 
-def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = True) -> np.ndarray:
+def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = True, forces=None) -> np.ndarray:
     """Standard errors of ``cal.forces(readings)``, (E, 3) or (T, E, 3) N.
 
     Parameters
@@ -126,6 +126,9 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
         measured :class:`~optitact.calib.error_model.ErrorModel` at each
         element's estimated Fz where it has one
         (:meth:`~optitact.calib.Calibration.validated`), else :func:`model_error`.
+    forces : ndarray, optional
+        ``cal.forces(readings)[0]`` when already made (the measured error
+        model is read at their Fz; otherwise they are computed again).
 
     Returns
     -------
@@ -158,7 +161,8 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
         var = np.where(np.asarray(readings.contact, bool)[..., None], var, 0.0)
     if with_model_error:
         if cal.error_model is not None:
-            var = var + cal.error_model.sigma(cal.forces(readings)[0][..., 2]) ** 2
+            est = cal.forces(readings)[0] if forces is None else np.asarray(forces)
+            var = var + cal.error_model.sigma(est[..., 2]) ** 2
         else:
             var = var + model_error(cal) ** 2
     return np.sqrt(var)

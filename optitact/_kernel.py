@@ -130,6 +130,7 @@ def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, para
                 any_lit |= fr[j] > lv[j]
             if not any_lit:
                 continue
+            # the mask only for lit chunks: writing it in the test above keeps that loop from vectorising
             for j in range(CHUNK):
                 mask[j] = fr[j] > lv[j]
             bits = np.uint64(0)
@@ -192,7 +193,7 @@ def chunks(pixel: np.ndarray, level: np.ndarray, n_pixels: int) -> tuple:
     -------
     cpix : (K,) intp
         First frame pixel of each chunk.
-    centry : (K * CHUNK,) intp
+    centry : (K * CHUNK,) int32 (intp beyond 2**31 entries)
         The (first) entry read at each slot of each chunk, or -1.
     clevel : (K * CHUNK,) level.dtype
         The lit level of each slot: the entry's, or the dtype's largest
@@ -218,7 +219,7 @@ def chunks(pixel: np.ndarray, level: np.ndarray, n_pixels: int) -> tuple:
     more[:-1] = same
     first = np.ones(n, bool)
     first[1:] = ~more[:-1]
-    centry = np.full(len(cpix) * CHUNK, -1, np.intp)
+    centry = np.full(len(cpix) * CHUNK, -1, np.int32 if n < 2**31 else np.intp)  # small: stays in cache
     centry[slot[first]] = np.flatnonzero(first)
     top = np.inf if level.dtype.kind == "f" else np.iinfo(level.dtype).max
     clevel = np.full(len(cpix) * CHUNK, top, level.dtype)

@@ -198,7 +198,7 @@ def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray, noise=None) -> tu
     if noise is not None:
         from .uncertainty import reading_errors
 
-        se = cal.stderr(r, None if noise == "model" else reading_errors(pipe, stack, noise, r))
+        se = cal.stderr(r, None if noise == "model" else reading_errors(pipe, stack, noise, r), forces=forces)
     return names, r, forces, clamped, stack[-1], se
 
 

@@ -11,7 +11,7 @@ import pytest
 from optitact.calib import Calibration, default_calibration
 from optitact.calib.crosstalk import CrossTalk
 from optitact.calib.curves import zero_shear_centroid
-from optitact.calib.fit import _grey_for_force
+from optitact.calib.curves import grey_for_force as _grey_for_force
 from optitact.calib.patterns import pattern_forces
 from optitact.calib.sets import Design
 from optitact.errors import InputError

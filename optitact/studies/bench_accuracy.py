@@ -178,11 +178,14 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                 estimates[model] = est
             scores = _scores(est, f_truth, clamped, f_read, fs, ring, contact_min_n)
             if errors is not None:
-                for key, c in (("coverage_90", validated.get(model, cal)), ("coverage_90_fit_residuals", cal)):
-                    if c is not None:
-                        cover = coverage(est, f_truth, c.stderr(f_read, errors), where=f_truth[..., 2] > 0)
-                        scores[key] = {ax: round(float(v), 4) for ax, v in zip(("fx", "fy", "fz"), cover,
-                                                                               strict=True)}
+                for key, c in (("coverage_90_fit_residuals", cal), ("coverage_90", validated.get(model))):
+                    if c is None:  # no validation set: the fit residuals' coverage is the one there is
+                        scores[key] = scores["coverage_90_fit_residuals"]
+                        continue
+                    cover = coverage(est, f_truth, c.stderr(f_read, errors, forces=est),
+                                     where=f_truth[..., 2] > 0)
+                    scores[key] = {ax: round(float(v), 4) for ax, v in zip(("fx", "fy", "fz"), cover,
+                                                                           strict=True)}
             out["families"][fam]["models"][model] = scores
     out["models"] = out["families"][families[0]]["models"]
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])

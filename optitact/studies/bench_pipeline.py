@@ -135,9 +135,10 @@ def _one_load(sensor, camera, forces, baseline, pipes, *, n_frames, repeats, n_r
     for _ in tqdm(range(repeats), desc=label, unit="repeat", file=sys.stderr):
         # frame by frame as on a stream: one untimed pass first (the long stacks below flush the caches;
         # on a stream only the new frame is cold, the pipeline's tables stay in cache)
-        for name, fn, arg in (("fast", _each, fast), ("numpy", _each, numpy_pipe), ("floor", _floor, thr)):
-            fn(*((arg, frames) if fn is _each else (frames, arg)))
-            _clock(t, name, fn, *((arg, frames) if fn is _each else (frames, arg)))
+        for name, fn, args in (("fast", _each, (fast, frames)), ("numpy", _each, (numpy_pipe, frames)),
+                               ("floor", _floor, (frames, thr))):
+            fn(*args)
+            _clock(t, name, fn, *args)
         _clock(t, "batch_1thread", one_thread.process, long)
         _clock(t, "batch_threads", all_threads.process, long)
         _clock(t, "floor_1thread", _floor, long, thr)
