@@ -64,6 +64,7 @@ import numpy as np
 
 from ._validate import check_type, positive, real_array
 from .camera import Camera, FisheyeCamera
+from .clusters import associate, element_clusters, nearest_spacing, vote_shift
 from .errors import GainsError, InputError, RegistrationError, ShapeError
 from .gains import element_gains
 from .sensor import DomeSensor
@@ -148,108 +149,6 @@ def _predict(sensor: DomeSensor, camera: Camera, elements: np.ndarray,
     cen = px.mean(axis=1)
     rms = np.sqrt(np.mean(np.sum((px - cen[:, None, :]) ** 2, axis=-1), axis=1))
     return cen, rms
-
-
-def _spacing(cen: np.ndarray) -> np.ndarray:
-    """Each predicted element's pixel distance to its nearest predicted neighbour (inf where alone)."""
-    d = np.linalg.norm(cen[:, None, :] - cen[None, :, :], axis=-1)
-    np.fill_diagonal(d, np.inf)
-    d[~np.isfinite(d)] = np.inf
-    return d.min(axis=1)
-
-
-# ----------------------------------------------------------------------------- clusters
-def _clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera: Camera) -> dict:
-    """Spots linked into element candidates on the dome (nominal camera); their centroids, energies, radii."""
-    import cv2
-    from scipy.sparse.csgraph import connected_components
-
-    from .dome_optics import dome_from_pixel
-
-    m = len(spots.energy)
-    pts = (dome_from_pixel(spots.centroid, sensor=sensor, camera=camera, outside="nan") if m
-           else np.zeros((0, 3)))
-    ok = np.isfinite(pts[:, 0]) & (spots.energy > 0)
-    link = 2.0 * sensor.cone_circle_radius
-    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-    adj = (d <= link) & ok[:, None] & ok[None, :]
-    _, comp = connected_components(adj, directed=False) if m else (0, np.zeros(0, int))
-    groups = [np.flatnonzero((comp == c) & ok) for c in np.unique(comp[ok])] if m else []
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-    h, w = diff.shape
-    out = {"centroid": [], "energy": [], "rms": [], "n_spots": []}
-    for g in groups:
-        mask = np.isin(spots.labels, g + 1)
-        rr, cc = np.nonzero(mask)
-        r0, r1, c0, c1 = max(rr.min() - 3, 0), min(rr.max() + 4, h), max(cc.min() - 3, 0), min(cc.max() + 4, w)
-        sub = cv2.dilate(mask[r0:r1, c0:c1].astype(np.uint8), kernel).astype(bool)
-        wts = np.where(sub, diff[r0:r1, c0:c1], 0.0)
-        e = wts.sum()
-        if not e > 0:
-            continue
-        gr, gc = np.mgrid[r0:r1, c0:c1]
-        cen = np.array([(wts * gr).sum(), (wts * gc).sum()]) / e
-        wp = np.maximum(wts, 0.0)
-        rms = math.sqrt(((gr - cen[0]) ** 2 + (gc - cen[1]) ** 2)[sub] @ wp[sub] / max(wp.sum(), 1e-300))
-        if g.size == sensor.n_cones:
-            # Every cone a spot of its own: the plain mean of the spots' centroids is what the model
-            # predicts (the mean of the cones' images, :func:`_predict`), whatever the cones' brightness
-            # (the rim light makes those nearer the rim brighter, which pulls the energy-weighted
-            # centroid of a ring merged at low resolution outwards, by up to half a pixel).
-            cen = spots.centroid[g].mean(axis=0)
-        out["centroid"].append(cen)
-        out["energy"].append(e)
-        out["rms"].append(rms)
-        out["n_spots"].append(g.size)
-    return {"centroid": np.array(out["centroid"]).reshape(-1, 2), "energy": np.array(out["energy"]),
-            "rms": np.array(out["rms"]), "n_spots": np.array(out["n_spots"], dtype=np.int64)}
-
-
-def _vote_shift(clusters: list[np.ndarray], pred: np.ndarray, gate: np.ndarray, search: float) -> np.ndarray:
-    """The image shift (measured - predicted) most clusters agree with; RegistrationError on a tie."""
-    allc = np.concatenate(clusters) if clusters else np.zeros((0, 2))
-    good = np.isfinite(pred[:, 0])
-    p, g = pred[good], gate[good]
-    cand = (allc[:, None, :] - p[None, :, :]).reshape(-1, 2)
-    cand = np.concatenate([np.zeros((1, 2)), cand[np.linalg.norm(cand, axis=-1) <= search]])
-
-    def score(s):
-        d = np.linalg.norm((allc - s)[:, None, :] - p[None, :, :], axis=-1)
-        j = d.argmin(axis=1)
-        hit = d[np.arange(len(allc)), j] <= g[j]
-        return int(hit.sum()), hit, j
-
-    counts = np.array([score(s)[0] for s in cand])
-    order = np.lexsort((np.linalg.norm(cand, axis=-1), -counts))
-    best = cand[order[0]]
-    n, hit, j = score(best)
-    if n == 0:
-        return np.zeros(2)
-    for o in order[1:]:
-        if counts[o] < n:
-            break
-        if np.linalg.norm(cand[o] - best) > 2.0 * np.median(g):
-            raise RegistrationError(
-                f"ambiguous association: shifting the predicted elements by {np.round(best, 1).tolist()} px or "
-                f"by {np.round(cand[o], 1).tolist()} px explains the same {n} spot clusters; press more "
-                f"elements, spread over several rings and further from the apex, or give a camera closer to "
-                f"the real one")
-    return np.median(allc[hit] - p[j[hit]], axis=0)
-
-
-def _associate(cl: np.ndarray, pred: np.ndarray, gate: np.ndarray,
-               shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Hungarian assignment of one frame's clusters to elements within the gates: (cluster, element) pairs."""
-    from scipy.optimize import linear_sum_assignment
-
-    if len(cl) == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    d = np.linalg.norm((cl - shift)[:, None, :] - pred[None, :, :], axis=-1)
-    inside = np.isfinite(d) & (d <= gate[None, :])
-    cost = np.where(inside, d, 1e9)
-    ri, ci = linear_sum_assignment(cost)
-    keep = inside[ri, ci]
-    return ri[keep], ci[keep]
 
 
 # ----------------------------------------------------------------------------- the fit
@@ -563,10 +462,10 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
     # spots and clusters, per frame, seen with the nominal camera
     everything = np.arange(sensor.n_elements)
     pred0, ring0 = _predict(sensor, camera, everything)
-    gate0 = GATE * _spacing(pred0)
+    gate0 = GATE * nearest_spacing(pred0)
     diffs = [f - base for f in frames]
     spots = [spots_in_difference(d, k, 2) for d in diffs]
-    clusters = [_clusters(d, s, sensor, camera) for d, s in zip(diffs, spots, strict=True)]
+    clusters = [element_clusters(d, s, sensor, camera) for d, s in zip(diffs, spots, strict=True)]
     rejected = [0] * len(frames)
     for i, cl in enumerate(clusters):  # compact blobs are no element's ring
         if len(cl["rms"]) == 0:
@@ -585,12 +484,12 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
 
     # association: one common shift, then per frame the Hungarian assignment within the gates
     search = 0.15 * min(h, w)
-    shift = _vote_shift([c["centroid"] for c in clusters], pred0, gate0, search)
+    shift = vote_shift([c["centroid"] for c in clusters], pred0, gate0, search)
     pred, gate, cur, fit = pred0, gate0, None, None
     for _round in range(4):
         obs_f, obs_c, obs_e = [], [], []
         for i, cl in enumerate(clusters):
-            ci, ei = _associate(cl["centroid"], pred, gate, shift)
+            ci, ei = associate(cl["centroid"], pred, gate, shift)
             obs_f += [i] * len(ci)
             obs_c += list(ci)
             obs_e += list(ei)
@@ -609,7 +508,7 @@ def register(noload, pressed, *, camera: Camera | None = None, sensor: DomeSenso
                                 fit_offsets=bool(fit_offsets), f_scale=f_scale)
         fs, fc, _ = fit["model"].build(fit["res"].x)
         pred, _ = _predict(fs, fc, everything)
-        gate, shift = GATE * _spacing(pred), np.zeros(2)
+        gate, shift = GATE * nearest_spacing(pred), np.zeros(2)
     model, res, elements, obs_f = fit["model"], fit["res"], fit["element"], fit["frame"]
     n_el = np.unique(elements).size
     if n_el < need:

@@ -7,7 +7,7 @@ Global ``(x, y, z)`` in mm as in :mod:`optitact.sensor`; the film is indexed
 camera model renders: :class:`FisheyeCamera` through its closed-form
 equidistant plugin, the others (:mod:`optitact.camera_models`, with their
 distortion and pose) through a table of their pixel corners' rays
-(:func:`corner_rays`).
+(:func:`optitact.render.rays.corner_rays`).
 
 The geometry is built as numpy triangle meshes (cached per sensor) and handed
 to Mitsuba in memory; nothing is written to disk.
@@ -27,8 +27,9 @@ from optitact.contact import Contacts
 from optitact.errors import InputError
 from optitact.sensor import DomeSensor
 
-__all__ = ["RenderSettings", "shell_mesh", "patch_polygons", "patch_mesh", "build_scene", "corner_rays",
-           "interpolate_rays"]
+from .rays import corner_rays
+
+__all__ = ["RenderSettings", "shell_mesh", "patch_polygons", "patch_mesh", "build_scene"]
 
 
 @dataclass(frozen=True)
@@ -236,7 +237,7 @@ def register_fisheye(mi) -> str:
     is integrated exactly as in a full frame), and film pixels past the list
     look away from the dome (they read 0). ``optitact_ray_table`` and
     ``optitact_ray_table_packed`` do the same for any other camera model
-    from a table of corner rays (see :func:`corner_rays`). :func:`build_scene`
+    from a table of corner rays (see :func:`~optitact.render.rays.corner_rays`). :func:`build_scene`
     sets the tables on the loaded sensor.
     """
     name = "optitact_fisheye"
@@ -407,92 +408,6 @@ TABLE_SENSOR = "optitact_ray_table"
 PACKED_TABLE_SENSOR = "optitact_ray_table_packed"
 
 
-def _finite_rays(rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Float32 rays with the missing (NaN) ones zeroed, and which are present."""
-    ok = np.isfinite(rays).all(axis=-1)
-    return np.where(ok[..., None], rays, 0.0).astype(np.float32), ok
-
-
-@lru_cache(maxsize=4)
-def _window_corner_rays(camera: Camera, r0: int, c0: int, h: int, w: int):
-    rows = r0 - 0.5 + np.arange(h + 1, dtype=np.float64)
-    cols = c0 - 0.5 + np.arange(w + 1, dtype=np.float64)
-    grid = np.stack(np.meshgrid(rows, cols, indexing="ij"), axis=-1)
-    rays, ok = _finite_rays(camera.ray_from_pixel(grid))
-    valid = ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]
-    rays.flags.writeable = False
-    valid.flags.writeable = False
-    return rays, valid
-
-
-def corner_rays(camera: Camera, crop: tuple[int, int, int, int] | None = None,
-                pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Dome-frame unit rays of the pixel corners, and which pixels have all four, for the ray-table plugin.
-
-    Pixel ``(row, col)`` covers ``[row - 0.5, row + 0.5) x [col - 0.5, col +
-    0.5)`` (the package's convention, :mod:`optitact.camera`); its corners'
-    rays come from :meth:`Camera.ray_from_pixel`. Inside a pixel the plugin
-    interpolates them bilinearly and normalises; a pixel with a corner no ray
-    maps to (NaN, e.g. beyond a pinhole's field) is marked invalid: its
-    samples miss with weight 0.
-
-    Parameters
-    ----------
-    camera : Camera
-    crop : (row0, col0, height, width), optional
-        The window to cover (default the whole image).
-    pixels : (n,) int array, optional
-        Flat pixel indices (``row * width + col``) instead of a window.
-
-    Returns
-    -------
-    rays : float32 ndarray
-        ``(h + 1, w + 1, 3)`` for a window (cached per camera and window),
-        ``(n, 2, 2, 3)`` (each pixel's corners, rows then columns) for
-        ``pixels``; missing rays are 0.
-    valid : bool ndarray
-        ``(h, w)`` or ``(n,)``: pixels whose four corners have rays.
-    """
-    if pixels is None:
-        r0, c0, h, w = (0, 0, camera.height, camera.width) if crop is None else crop
-        return _window_corner_rays(camera, int(r0), int(c0), int(h), int(w))
-    rows, cols = np.divmod(np.asarray(pixels, dtype=np.int64), camera.width)
-    # corner (i, j) of a pixel lies at (row + i - 0.5, col + j - 0.5): flat index in the (H+1) x (W+1) grid
-    ids = ((rows[:, None, None] + np.arange(2)[None, :, None]) * (camera.width + 1)
-           + cols[:, None, None] + np.arange(2)[None, None, :])
-    unique, inverse = np.unique(ids, return_inverse=True)
-    cr, cc = np.divmod(unique, camera.width + 1)
-    rays, ok = _finite_rays(camera.ray_from_pixel(np.stack([cr - 0.5, cc - 0.5], axis=-1)))
-    return rays[inverse.reshape(ids.shape)], ok[inverse.reshape(ids.shape)].all(axis=(1, 2))
-
-
-def interpolate_rays(rays: np.ndarray, positions: np.ndarray, origin=(0.0, 0.0)) -> np.ndarray:
-    """NumPy reference of the ray-table plugin: rays at sub-pixel positions from a window's corner rays.
-
-    Parameters
-    ----------
-    rays : (h + 1, w + 1, 3) array
-        Corner rays of a window (:func:`corner_rays`).
-    positions : (..., 2) array
-        Image positions ``(row, col)`` inside the window.
-    origin : (row0, col0)
-        The window's first pixel.
-
-    Returns
-    -------
-    (..., 3) float64 ndarray
-        Bilinear interpolation between the 4 corners of each position's pixel, normalised.
-    """
-    q = np.asarray(positions, dtype=np.float64) - np.asarray(origin, dtype=np.float64) + 0.5
-    h, w = rays.shape[0] - 1, rays.shape[1] - 1
-    i = np.clip(np.floor(q[..., 0]), 0, h - 1).astype(np.int64)
-    j = np.clip(np.floor(q[..., 1]), 0, w - 1).astype(np.int64)
-    v, u = (q[..., 0] - i)[..., None], (q[..., 1] - j)[..., None]
-    t = rays.astype(np.float64)
-    d = (t[i, j] * (1 - u) + t[i, j + 1] * u) * (1 - v) + (t[i + 1, j] * (1 - u) + t[i + 1, j + 1] * u) * v
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
 def build_scene(mi, sensor: DomeSensor, camera: Camera, contacts: Contacts,
                 settings: RenderSettings, *, crop: tuple[int, int, int, int] | None = None,
                 pixels: np.ndarray | None = None, instanced: bool = False):
@@ -514,7 +429,7 @@ def build_scene(mi, sensor: DomeSensor, camera: Camera, contacts: Contacts,
     The camera is any :class:`~optitact.camera.Camera`: a
     :class:`FisheyeCamera` gets the closed-form equidistant plugin, another
     model the ray-table plugin, its rays starting at ``camera.position``
-    and interpolated between the pixel corners' rays (:func:`corner_rays`,
+    and interpolated between the pixel corners' rays (:func:`~optitact.render.rays.corner_rays`,
     cached per camera and window: about 2 s for a distorted 640 x 480
     pinhole's table, re-projecting within 0.001 px).
     instanced : bool

@@ -255,12 +255,12 @@ def test_bench_stability_calls_the_noise_sweep_study(monkeypatch, capsys):
         calls.update(cases=cases, seed=seed, progress=progress)
         return {"cases": cases, "failures": 0}
 
-    module = types.ModuleType("optitact.studies.noise_sweep")
+    module = types.ModuleType("optitact.studies.bench_stability")
     module.bench_stability = bench_stability
-    monkeypatch.setitem(sys.modules, "optitact.studies.noise_sweep", module)
+    monkeypatch.setitem(sys.modules, "optitact.studies.bench_stability", module)
     import optitact.studies
 
-    monkeypatch.setattr(optitact.studies, "noise_sweep", module, raising=False)
+    monkeypatch.setattr(optitact.studies, "bench_stability", module, raising=False)
     assert main(["bench", "stability", "--cases", "12", "--seed", "5"]) == 0
     assert json.loads(capsys.readouterr().out) == {"cases": 12, "failures": 0}
     assert calls == {"cases": 12, "seed": 5, "progress": True}

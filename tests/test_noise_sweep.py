@@ -12,6 +12,7 @@ import json
 import pytest
 
 import optitact
+from optitact.studies import bench_stability as bs
 from optitact.studies import noise_sweep as ns
 
 
@@ -58,8 +59,8 @@ def _small_run(seed, *, full, progress):
 
 
 def test_bench_stability_counts_the_stress_cases(monkeypatch):
-    monkeypatch.setattr(ns, "run", _small_run)
-    out = ns.bench_stability(cases=40, seed=3, progress=False)
+    monkeypatch.setattr(bs, "run", _small_run)
+    out = bs.bench_stability(cases=40, seed=3, progress=False)
     json.dumps(out)
     assert out["pytest_exit_code"] == 0 and out["failures"] == [], out["failure_reasons"]
     assert set(out["categories"]) == {"frames", "readings", "calibration_fit", "calibration_file",
@@ -71,11 +72,11 @@ def test_bench_stability_counts_the_stress_cases(monkeypatch):
 
 
 def test_bench_stability_without_a_source_checkout(monkeypatch, tmp_path):
-    monkeypatch.setattr(ns, "run", _small_run)
-    monkeypatch.setattr(ns, "STRESS_TESTS", tmp_path / "tests" / "stress")
-    out = ns.bench_stability(cases=10, seed=0, progress=False)
+    monkeypatch.setattr(bs, "run", _small_run)
+    monkeypatch.setattr(bs, "STRESS_TESTS", tmp_path / "tests" / "stress")
+    out = bs.bench_stability(cases=10, seed=0, progress=False)
     assert "need a source checkout" in out["stress_cases"]
     one = {"generated": 1, "passed": 1, "failed": 0, "cases": 1, "failures": 0}
     assert out["categories"] == {"readings": one}
     with pytest.raises(optitact.errors.InputError, match="cases must be a non-negative integer, got -1"):
-        ns.bench_stability(cases=-1)
+        bs.bench_stability(cases=-1)

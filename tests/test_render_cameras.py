@@ -14,7 +14,7 @@ import pytest
 import optitact
 from optitact.camera_models import OpenCVFisheyeCamera, PinholeCamera, pose_from_position
 from optitact.render import render, spot_pixels
-from optitact.render.scene import corner_rays, interpolate_rays
+from optitact.render.rays import corner_rays, interpolate_rays
 
 from test_render import PIX_LOAD, dome_point, patch_spot, single_patch
 

@@ -191,7 +191,7 @@ def _accuracy(args) -> dict:
 
 
 def _stability(args) -> dict:
-    from optitact.studies.noise_sweep import bench_stability
+    from optitact.studies.bench_stability import bench_stability
 
     return bench_stability(cases=args.cases, seed=args.seed, progress=True)
 
