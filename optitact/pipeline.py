@@ -83,6 +83,7 @@ from .steps import (
 # The steps and the region geometry live in optitact.steps and optitact.regions; they are
 # re-exported here, where the pipeline's stages are documented.
 __all__ = [
+    "CHUNK_ENTRIES",
     "CHUNK_FRAMES",
     "FILTERS",
     "G_MIN",
@@ -112,8 +113,12 @@ __all__ = [
 METHODS = ("fast", "reference")
 #: What G does with the energy the threshold clips from the spots' tails (``Pipeline(tail=...)``).
 TAILS = ("none", "gaussian")
-#: Frames processed together by the fast method (bounds its temporary memory).
+#: Most frames the fast method's NumPy kernel processes together (bounds its temporary memory).
 CHUNK_FRAMES = 64
+#: Region entries (frames x entries per frame) the NumPy kernel processes together: its
+#: temporaries stay a few MB, which the allocator reuses; larger ones are mapped afresh on
+#: every call, and the page faults of touching them cost more than the NumPy calls saved.
+CHUNK_ENTRIES = 2**18
 
 
 def _cores() -> int:
@@ -505,7 +510,8 @@ class Pipeline:
         elif single:
             return fast_numpy(self, stack, single=True)
         else:
-            chunks = [stack[i:i + CHUNK_FRAMES] for i in range(0, len(stack), CHUNK_FRAMES)]
+            step = min(max(CHUNK_ENTRIES // max(len(self.region_weights.pixel), 1), 1), CHUNK_FRAMES)
+            chunks = [stack[i:i + step] for i in range(0, len(stack), step)]
             n = min(self.threads_for(len(stack)), len(chunks))
             bounds = np.linspace(0, len(chunks), n + 1).astype(int)
             parts = [r for part in run_split(lambda a, b: [fast_numpy(self, c) for c in chunks[a:b]], bounds)

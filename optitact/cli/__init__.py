@@ -16,12 +16,19 @@ are argparse parent parsers (:mod:`~optitact.cli._args`).
 
 from __future__ import annotations
 
-import argparse
-import json
+import os
 import sys
-import warnings
 
-from optitact import __version__
+if "numpy" not in sys.modules:  # the command line is the program: before NumPy loads OpenBLAS
+    # optitact parallelises over frames itself; OpenBLAS's own worker threads only busy-wait
+    # (about 0.1 s of CPU at every start) on matrices this small. A user's setting is kept.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import warnings  # noqa: E402
+
+from optitact import __version__  # noqa: E402
 from optitact.errors import OptitactError, OptitactWarning
 
 from . import bench, calibrate, demo, experiment, process, register

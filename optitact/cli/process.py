@@ -226,10 +226,15 @@ def _noise(args, cal):
 
 def run_process(args) -> int:
     """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
+    import cv2
+
     from optitact.batch import process_files
     from optitact.frames import expand_sources, iter_frames
     from optitact.tables import per_frame_path
 
+    # OpenCV's worker threads would busy-wait between frames for a colour conversion that takes
+    # a tenth of a millisecond; video decoding keeps its own (FFmpeg's) threads
+    cv2.setNumThreads(1)
     _check_out(args.out, "--out")
     _check_out(args.plot, "--plot")
     if args.camera is not None:
