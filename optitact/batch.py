@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import os
+from contextlib import closing
 import sys
 import time
 from collections.abc import Iterable, Sequence
@@ -37,7 +38,7 @@ import numpy as np
 from . import _kernel
 from ._validate import integer
 from .errors import InputError, OptitactError
-from .frames import count_frames, expand_sources, iter_frames
+from .frames import count_frames, expand_sources, iter_frames, read_ahead
 from .tables import ReadingsWriter
 from .pipeline import Pipeline, take_baseline
 from .readings import Readings
@@ -50,6 +51,8 @@ __all__ = ["SHORT_RUN_PIXELS", "ProcessedFrames", "process_files"]
 #: saves over NumPy on ~1,000 frames of 640x480 or ~300 of 1280x960 (measured on two-stage frames
 #: read from MJPG, every element loaded). The readings are the same bit for bit.
 SHORT_RUN_PIXELS = 3e8
+#: Grey levels :func:`process_files` decodes ahead of the frames being processed, at most.
+READ_AHEAD_BYTES = 64 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -310,9 +313,13 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
     if (pipe.kernel == "numba" and pipe._kernel_request == "auto" and not _kernel.loaded()
             and n_frames * pipe.camera.shape[0] * pipe.camera.shape[1] < SHORT_RUN_PIXELS):
         pipe = pipe.replace(kernel="numpy")
-    with sink, tqdm(total=n_frames, unit="frame", desc="process", file=sys.stderr,
-                    disable=not progress) as bar:
-        base, head, pairs = take_baseline(iter_frames(files), n_base, frame=lambda item: item[1])
+    frames = iter_frames(files)
+    if scheduler is None:  # decode the next frames while these are processed
+        h, w = pipe.camera.shape
+        frames = read_ahead(frames, depth=max(2, min(4 * batch, READ_AHEAD_BYTES // (h * w))))
+    with sink, closing(frames), tqdm(total=n_frames, unit="frame", desc="process", file=sys.stderr,
+                                     disable=not progress) as bar:
+        base, head, pairs = take_baseline(frames, n_base, frame=lambda item: item[1])
         if base is not None:
             for name, frame in head:
                 _check_shape(name, frame, pipe.camera.shape)

@@ -25,22 +25,26 @@ a clear :class:`~optitact.errors.InputError` instead of filling the memory.
 from __future__ import annotations
 
 import os
+import queue
 import struct
+import threading
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from ._validate import integer
 from .camera import check_frame_size
 from .errors import InputError, OptitactWarning, ShapeError
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "check_codec",
-           "expand_sources", "count_frames", "iter_frames"]
+           "expand_sources", "count_frames", "iter_frames", "read_ahead"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".wmv", ".mpg", ".mpeg")
 _ARRAY_SUFFIXES = (".npy",)
+_END = object()  # read_ahead: the items are done
 
 #: Video codecs (FOURCC, lower case, spaces stripped; "" is raw video) that store frames exactly.
 LOSSLESS_CODECS = frozenset({
@@ -242,6 +246,58 @@ def iter_frames(files: Sequence[Path]) -> Iterator[tuple[str, np.ndarray]]:
             if img is None:
                 raise InputError(f"{f}: OpenCV cannot read this image")
             yield f.name, _grey(img, str(f))
+
+
+def read_ahead(items: Iterable, depth: int) -> Iterator:
+    """``items`` in order, produced up to ``depth`` ahead by a background thread.
+
+    Frames decode (OpenCV releases the GIL) while the caller works on the
+    ones before them. An exception of ``items`` (a corrupt frame, a warning
+    turned into an error) is raised here, at the item where it happened.
+    Closing the returned generator (or leaving a loop over it early) stops
+    the thread and closes ``items`` there.
+    """
+    depth = integer(depth, "depth", minimum=1)
+    slots: queue.Queue = queue.Queue(depth)
+    stop = threading.Event()
+
+    def produce() -> None:
+        source = iter(items)
+        try:
+            for item in source:
+                while not stop.is_set():
+                    try:
+                        slots.put((True, item), timeout=0.05)
+                        break
+                    except queue.Full:
+                        pass
+                if stop.is_set():
+                    return
+            slots.put((True, _END))
+        except BaseException as exc:  # handed to the consumer, raised there
+            slots.put((False, exc))
+        finally:
+            close = getattr(source, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=produce, name="optitact-read-ahead", daemon=True)
+    worker.start()
+    try:
+        while True:
+            ok, item = slots.get()
+            if not ok:
+                raise item
+            if item is _END:
+                return
+            yield item
+    finally:
+        stop.set()
+        while worker.is_alive():  # unblock a producer waiting for a free slot
+            try:
+                slots.get_nowait()
+            except queue.Empty:
+                worker.join(0.01)
 
 
 def check_codec(f: Path, cap) -> None:

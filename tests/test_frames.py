@@ -208,3 +208,55 @@ def test_region_precompute_memory_stays_near_what_it_keeps():
     held = sum(a.nbytes for a in (grids.pixels, grids.area, grids.mask, weights.pixel, weights.label,
                                   weights.weights))
     assert held <= kept and peak <= 2.0 * held
+
+
+# ----------------------------------------------------------------------------- read_ahead
+def test_read_ahead_gives_the_items_in_order_and_raises_where_they_fail():
+    from optitact.frames import read_ahead
+
+    assert list(read_ahead(iter(range(1000)), depth=3)) == list(range(1000))
+
+    def failing():
+        yield from range(5)
+        raise InputError("frame 5 is corrupt")
+
+    got = []
+    with pytest.raises(InputError, match="frame 5 is corrupt"):
+        for item in read_ahead(failing(), depth=2):
+            got.append(item)
+    assert got == [0, 1, 2, 3, 4]  # every item before the failure, then its error
+
+
+def test_read_ahead_closed_early_stops_its_thread_and_closes_the_source():
+    import threading
+
+    from optitact.frames import read_ahead
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            k = 0
+            while True:
+                yield k
+                k += 1
+        finally:
+            closed.set()
+
+    ahead = read_ahead(endless(), depth=4)
+    assert [next(ahead) for _ in range(10)] == list(range(10))
+    ahead.close()
+    assert closed.wait(5.0)  # the source's finally ran (a video is released)
+    assert not any(t.name == "optitact-read-ahead" and t.is_alive() for t in threading.enumerate())
+    with pytest.raises(InputError, match="depth"):
+        next(read_ahead(iter([1]), depth=0))
+
+
+def test_a_video_read_ahead_is_the_video(tmp_path):
+    from optitact.frames import read_ahead
+
+    path = _video(tmp_path / "v.avi", "FFV1", _frames())
+    direct = list(iter_frames([path]))
+    ahead = list(read_ahead(iter_frames([path]), depth=2))
+    assert [n for n, _ in ahead] == [n for n, _ in direct]
+    assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(ahead, direct, strict=True))
