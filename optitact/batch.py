@@ -47,10 +47,11 @@ from .steps import check_frames
 __all__ = ["SHORT_RUN_PIXELS", "ProcessedFrames", "process_files"]
 
 #: A run of fewer frames x pixels than this takes the NumPy kernel when the compiled one is not
-#: loaded yet (``kernel="auto"``): loading numba costs ~0.3 s of CPU, what the compiled kernel
-#: saves over NumPy on ~1,000 frames of 640x480 or ~300 of 1280x960 (measured on two-stage frames
-#: read from MJPG, every element loaded). The readings are the same bit for bit.
-SHORT_RUN_PIXELS = 3e8
+#: loaded yet (``kernel="auto"``): loading numba and its cached kernel costs ~0.5 s of CPU
+#: (numba imports SciPy's BLAS), what the compiled kernel saves over NumPy on ~2,800 frames of
+#: 640x480 or ~950 of 1280x960 (measured on two-stage frames read from MJPG, every element
+#: loaded: the most lit pixels). The readings are the same bit for bit.
+SHORT_RUN_PIXELS = 1e9
 #: Grey levels :func:`process_files` decodes ahead of the frames being processed, at most.
 READ_AHEAD_BYTES = 64 << 20
 
@@ -173,17 +174,34 @@ def _name_the_frame(pipe: Pipeline, names: Sequence[str], frames) -> None:
             raise type(exc)(f"{frame_label(name)}: {msg}") from None
 
 
-def _batches(pairs: Iterable, shape: tuple[int, int], batch: int):
-    """``(names, stack)`` of up to ``batch`` frames at a time from ``(name, frame)`` pairs."""
+def _batches(pairs: Iterable, shape: tuple[int, int], batch: int, *, reuse: bool = False):
+    """``(names, stack)`` of up to ``batch`` frames at a time from ``(name, frame)`` pairs.
+
+    With ``reuse``, every stack of frames of one dtype is the same buffer, overwritten by the
+    next batch: a batch of large frames is not mapped and faulted in afresh each time (39 MB
+    of 1280x960 frames at 32 a batch, a sixth of a second per 500 frames).
+    """
     held: list = []
+    buffer = None
+
+    def stacked():
+        nonlocal buffer
+        frames = [f for _, f in held]
+        dtype = frames[0].dtype
+        if not reuse or any(f.dtype != dtype for f in frames):
+            return np.stack(frames)
+        if buffer is None or buffer.dtype != dtype:
+            buffer = np.empty((batch, *shape), dtype)
+        return np.stack(frames, out=buffer[:len(frames)])
+
     for name, frame in pairs:
         _check_shape(name, frame, shape)
         held.append((name, frame))
         if len(held) >= batch:
-            yield [n for n, _ in held], np.stack([f for _, f in held])
+            yield [n for n, _ in held], stacked()
             held = []
     if held:
-        yield [n for n, _ in held], np.stack([f for _, f in held])
+        yield [n for n, _ in held], stacked()
 
 
 def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray, noise=None) -> tuple:
@@ -202,7 +220,7 @@ def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray, noise=None) -> tu
         from .uncertainty import reading_errors
 
         se = cal.stderr(r, None if noise == "model" else reading_errors(pipe, stack, noise, r), forces=forces)
-    return names, r, forces, clamped, stack[-1], se
+    return names, r, forces, clamped, stack[-1].copy(), se  # a copy: the stack's buffer is reused
 
 
 def _read_file(pipe: Pipeline, cal, path, batch: int, noise=None) -> list:
@@ -357,7 +375,7 @@ def _results(pipe, cal, files, head, rest, batch, scheduler, noise=None):
     if scheduler is None:
         if head:
             yield _read(pipe, cal, [n for n, _ in head], np.stack([f for _, f in head]), noise)
-        for names, stack in _batches(rest, pipe.camera.shape, batch):
+        for names, stack in _batches(rest, pipe.camera.shape, batch, reuse=True):
             yield _read(pipe, cal, names, stack, noise)
         return
     from ._cluster import dask_client

@@ -1089,3 +1089,17 @@ def test_tail_gaussian_adds_back_what_the_threshold_clips(method, kernel):
         np.testing.assert_array_equal(b.contact, a.contact)
     with pytest.raises(ValueError, match="tail must be one of"):
         Pipeline(SENSOR, SMALL, tail="exponential")
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 1001])
+def test_start_up_median_and_quantile_are_numpys_to_the_bit(n):
+    """The baseline's noise and impulse statistics use NumPy's median and quantile, re-done without numpy.ma."""
+    from optitact.baseline import _quantile
+    from optitact.steps import _median
+
+    rng = np.random.default_rng(n)
+    for _ in range(20):
+        for x in (rng.normal(size=n) * 10.0 ** rng.uniform(-4, 4), rng.integers(0, 4, n).astype(float)):
+            assert _median(x) == np.median(x)
+            for q in (0.0, 0.1, 0.5, 0.9, 1.0):
+                assert _quantile(x, q) == np.quantile(x, q)

@@ -25,14 +25,12 @@ if "numpy" not in sys.modules:  # the command line is the program: before NumPy 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import importlib  # noqa: E402
 import json  # noqa: E402
 import warnings  # noqa: E402
 
 from optitact import __version__  # noqa: E402
 from optitact.errors import OptitactError, OptitactWarning
-
-from . import bench, calibrate, demo, experiment, process, register
-from .demo import overlay
 
 __all__ = ["main", "overlay", "parser", "USER_ERRORS"]
 
@@ -41,17 +39,35 @@ __all__ = ["main", "overlay", "parser", "USER_ERRORS"]
 USER_ERRORS = (OptitactError, OSError, json.JSONDecodeError)
 
 
-def parser() -> argparse.ArgumentParser:
-    """The ``optitact`` argument parser."""
+#: The module (of this package) that adds each command, in the order ``--help`` lists them.
+COMMANDS = {"demo": "demo", "render": "demo", "process": "process", "register": "register",
+            "calibrate": "calibrate", "bench": "bench", "experiment": "experiment"}
+
+
+def parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``optitact`` argument parser (with ``command``: only the module that adds that command).
+
+    A command's run imports what it needs: ``optitact process`` imports neither the renderer's,
+    the calibration sets' nor the benchmarks' modules.
+    """
     p = argparse.ArgumentParser(
         prog="optitact",
         description="Optical three-axis tactile sensing: render synthetic frames of the dome "
                     "sensor, process frames into forces.")
     p.add_argument("--version", action="version", version=f"optitact {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
-    for module in (demo, process, register, calibrate, bench, experiment):
-        module.add_parsers(sub)
+    names = dict.fromkeys(COMMANDS.values()) if command is None else [COMMANDS[command]]
+    for name in names:
+        importlib.import_module(f"{__name__}.{name}").add_parsers(sub)
     return p
+
+
+def __getattr__(name: str):
+    if name == "overlay":  # re-exported from the demo command's module
+        from .demo import overlay
+
+        return overlay
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _one_line(message, category, filename, lineno, file=None, line=None) -> None:
@@ -63,7 +79,8 @@ def _one_line(message, category, filename, lineno, file=None, line=None) -> None
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``optitact`` command; returns the exit code."""
-    args = parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parser(argv[0] if argv and argv[0] in COMMANDS else None).parse_args(argv)
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _one_line
