@@ -268,6 +268,9 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         :class:`~optitact.tables.ReadingsWriter`).
     batch : int
         Frames processed together (default 32); the results do not depend on it.
+        Here (without a scheduler) a background thread decodes the next frames
+        (:func:`~optitact.frames.read_ahead`) while a batch is processed, and a
+        pipeline made without ``threads`` splits its batches across one core fewer.
     scheduler : str or distributed.Client, optional
         Process on a Dask cluster, one task per file (needs the ``dask``
         extra); the table is the same as a local run's.
@@ -333,6 +336,8 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         pipe = pipe.replace(kernel="numpy")
     frames = iter_frames(files)
     if scheduler is None:  # decode the next frames while these are processed
+        if pipe._threads_request is None and pipe.threads > 1:  # a core is the decoder's
+            pipe = pipe.replace(threads=pipe.threads - 1)
         h, w = pipe.camera.shape
         frames = read_ahead(frames, depth=max(2, min(4 * batch, READ_AHEAD_BYTES // (h * w))))
     with sink, closing(frames), tqdm(total=n_frames, unit="frame", desc="process", file=sys.stderr,
