@@ -195,6 +195,32 @@ def test_bench_pipeline_json(capsys):
     assert size["precompute_cached_s"] > 0 and size["startup_to_first_frame_s"] > 0
 
 
+def test_bench_process_json(capsys):
+    """End to end: process on a cached recording against decoding it, side by side in fresh processes."""
+    import cv2
+
+    from optitact.studies.bench_process import NOLOAD_FRAMES, recording
+
+    assert main(["bench", "process", "--size", "96x72", "--frames", "8", "--repeats", "1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    row = out["rows"]["96x72-MJPG"]
+    assert row["calibration"] is None and row["frames"] == 8
+    assert row["table_rows"] == 8 * 41  # process read every frame of the recording, every element
+    for name in ("process", "decode", "decode_tuned"):
+        assert row[f"{name}_wall_s"] > 0 and row[f"{name}_cpu_s"] > 0
+    for key in ("wall_vs_decode", "cpu_vs_decode", "wall_vs_decode_tuned", "cpu_vs_decode_tuned"):
+        assert row[key] > 0
+    # the recording is kept: the same file, no-load frames first, then all elements lit
+    video = recording(96, 72, "MJPG", frames=8, seed=0)
+    cap = cv2.VideoCapture(str(video))
+    grey = []
+    while (got := cap.read())[0]:
+        grey.append(cv2.cvtColor(got[1], cv2.COLOR_BGR2GRAY).astype(float))
+    assert len(grey) == 8
+    lit = [float(np.mean(g)) for g in grey]
+    assert max(lit[:NOLOAD_FRAMES]) < min(lit[NOLOAD_FRAMES:])
+
+
 def test_bench_pipeline_bad_size(capsys):
     assert main(["bench", "pipeline", "--size", "640by480"]) == 2
     assert "--size must look like 640x480" in capsys.readouterr().err

@@ -19,17 +19,19 @@ from __future__ import annotations
 import os
 import sys
 
-if "numpy" not in sys.modules:  # the command line is the program: before NumPy loads OpenBLAS
+#: The command line set ``OPENBLAS_NUM_THREADS=1`` itself (the user had not set it).
+_BLAS_THREADS_SET = "numpy" not in sys.modules and "OPENBLAS_NUM_THREADS" not in os.environ
+if _BLAS_THREADS_SET:  # the command line is the program: before NumPy loads OpenBLAS
     # optitact parallelises over frames itself; OpenBLAS's own worker threads only busy-wait
     # (about 0.1 s of CPU at every start) on matrices this small. A user's setting is kept.
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
 
-import argparse  # noqa: E402
-import importlib  # noqa: E402
-import json  # noqa: E402
-import warnings  # noqa: E402
+import argparse
+import importlib
+import json
+import warnings
 
-from optitact import __version__  # noqa: E402
+from optitact import __version__
 from optitact.errors import OptitactError, OptitactWarning
 
 __all__ = ["main", "overlay", "parser", "USER_ERRORS"]

@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ._args import image_size_parent, pattern_choices, plot_parent, positive_int, seed_parent, size, \
-    variant_parent
+from ._args import image_size_parent, int_at_least, pattern_choices, plot_parent, positive_int, seed_parent, \
+    size, variant_parent
 
 #: argparse %-formats help strings (``%%`` is a literal ``%``) but prints descriptions as they are:
 #: a description must write ``%``, a help string ``%%``.
@@ -150,8 +150,28 @@ def add_parsers(sub) -> None:
                        help="held-out frames per stand-in, every element loaded (default 40)")
     breal.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
 
+    bproc = bsub.add_parser(
+        "process", parents=[seed_parent()],
+        help="optitact process on a whole video against decoding the video alone",
+        description="Make a recording of the dome once per size and codec (two-stage renders exposed by the "
+                    "CCD model, a no-load stretch then all 41 elements loaded; kept in the cache folder), "
+                    "then time side by side in each repeat three fresh processes on it: optitact process "
+                    "(with the shipped calibration at its camera's size, readings alone elsewhere), the "
+                    "decode loop a user would write (cv2.VideoCapture read + cvtColor) and that loop run "
+                    "as process reads frames (OpenCV's worker pool off, one OpenBLAS thread). Reports "
+                    "median wall and CPU seconds (the OS's accounting of each child) and the medians of "
+                    "the per-repeat ratios. One JSON object on stdout.")
+    bproc.add_argument("--size", nargs="+", default=["640x480", "1280x960"], metavar="WxH",
+                       help="frame sizes (default 640x480 1280x960)")
+    bproc.add_argument("--codec", nargs="+", choices=("MJPG", "FFV1"), default=["MJPG"],
+                       help="video codecs (default MJPG: what USB cameras record)")
+    bproc.add_argument("--frames", type=int_at_least(6, "an integer >= 6"), default=500,
+                       help="frames per recording (default 500)")
+    bproc.add_argument("--repeats", type=positive_int, default=5,
+                       help="timed runs of each command; medians are reported (default 5)")
+
     for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab),
-                    ("realism", breal)):
+                    ("realism", breal), ("process", bproc)):
         p.add_argument("--json", action="store_true",
                        help="print the result as one JSON object on stdout (what every bench prints; "
                             "the flag is accepted so that scripts can say so)")
@@ -172,6 +192,13 @@ def _pipeline(args) -> dict:
 
     return bench_pipeline([size(s) for s in args.size], loads=args.loads, n_frames=args.frames,
                           repeats=args.repeats, seed=args.seed, startup=args.startup)
+
+
+def _process(args) -> dict:
+    from optitact.studies.bench_process import bench_process
+
+    return bench_process([size(s) for s in args.size], codecs=tuple(args.codec), frames=args.frames,
+                         repeats=args.repeats, seed=args.seed)
 
 
 def _accuracy(args) -> dict:
@@ -224,4 +251,4 @@ def _printing(bench):
 
 #: ``optitact bench NAME`` -> the command.
 BENCHES = {"render": _printing(_render), "pipeline": _printing(_pipeline), "accuracy": _printing(_accuracy),
-           "stability": _printing(_stability), "realism": _printing(_realism)}
+           "stability": _printing(_stability), "realism": _printing(_realism), "process": _printing(_process)}
