@@ -101,7 +101,8 @@ def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, para
     comparison (vectorised); in a lit one, the lit slots become a bit mask
     whose set bits are visited in order, so the lit entries are summed in
     entry order (running sums kept in registers while the element stays the
-    same), as ``np.bincount`` sums them in :func:`optitact._fastpath.fast_numpy`.
+    same, from one lit chunk to the next: a spot's rows), as ``np.bincount``
+    sums them in :func:`optitact._fastpath.fast_numpy`.
 
     ``more``: whether the next entry reads the same pixel (regions that
     touch share pixels; ``centry`` holds the first). ``fent`` (n, 5): each
@@ -121,6 +122,8 @@ def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, para
     for t in range(t0, t1):
         frame = flat[t]
         g, w, hot, contact, u = sums[0, t], sums[1, t], flags[0, t], flags[1, t], u_out[t]
+        e = -1  # the element whose running sums are in registers (kept across chunks: a spot's rows)
+        gg = ww = xx = yy = 0.0
         for k in range(n_chunks):
             p0 = cpix[k]
             fr = frame[p0:p0 + CHUNK]
@@ -136,8 +139,6 @@ def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, para
             bits = np.uint64(0)
             for q in range(CHUNK // 8):
                 bits |= ((words[q] * np.uint64(_GATHER_BITS)) >> np.uint64(56)) << np.uint64(8 * q)
-            e = -1
-            gg = ww = xx = yy = 0.0
             while bits:
                 j = trailing_zeros(bits)
                 bits &= bits - np.uint64(1)
@@ -162,8 +163,8 @@ def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, para
                     if not more[i]:
                         break
                     i += 1
-            if e >= 0:
-                g[e], w[e], u[e, 0], u[e, 1] = gg, ww, xx, yy
+        if e >= 0:
+            g[e], w[e], u[e, 0], u[e, 1] = gg, ww, xx, yy
         for j in range(watch.shape[0]):
             if float(frame[watch[j, 0]]) >= sat:
                 hot[watch[j, 1]] = True
