@@ -11,6 +11,7 @@ puts the apex element's cone patches, so no renderer is needed either.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -139,3 +140,31 @@ def test_the_library_never_imports_the_studies_layer(tmp_path):
     assert r.returncode == 0, r.stderr
     n, studies = r.stdout.split(" ", 1)
     assert int(n) > 30 and studies.strip() == "[]"
+
+
+def test_the_command_line_loads_only_its_command(tmp_path):
+    """import optitact loads no NumPy; optitact process imports neither the renderer's, the sets' nor the
+    benchmarks' modules, and runs OpenBLAS on one thread unless the user set it."""
+    code = textwrap.dedent("""
+        import os, sys
+        import optitact, optitact.cli
+        assert "numpy" not in sys.modules, "import optitact loaded NumPy"
+        try:
+            optitact.cli.main(["process", "--help"])
+        except SystemExit:
+            pass
+        loaded = sorted(m for m in sys.modules if m.startswith(("optitact.cli.", "optitact.studies", "mitsuba",
+                                                                "zarr", "dask", "sklearn", "matplotlib")))
+        from optitact import Pipeline, register
+        assert callable(register) and not isinstance(register, type(sys))
+        import optitact.register  # the submodule: optitact.register stays the function
+        assert optitact.register is register
+        print(loaded, os.environ.get("OPENBLAS_NUM_THREADS"))
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[-2] == "['optitact.cli._args', 'optitact.cli.process'] 1"
+    env["OPENBLAS_NUM_THREADS"] = "2"  # the user's setting is kept
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert r.stdout.split("\n")[-2].endswith(" 2"), r.stderr

@@ -16,19 +16,11 @@ are argparse parent parsers (:mod:`~optitact.cli._args`).
 
 from __future__ import annotations
 
-import os
-import sys
-
-#: The command line set ``OPENBLAS_NUM_THREADS=1`` itself (the user had not set it).
-_BLAS_THREADS_SET = "numpy" not in sys.modules and "OPENBLAS_NUM_THREADS" not in os.environ
-if _BLAS_THREADS_SET:  # the command line is the program: before NumPy loads OpenBLAS
-    # optitact parallelises over frames itself; OpenBLAS's own worker threads only busy-wait
-    # (about 0.1 s of CPU at every start) on matrices this small. A user's setting is kept.
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"
-
 import argparse
 import importlib
 import json
+import os
+import sys
 import warnings
 
 from optitact import __version__
@@ -79,8 +71,26 @@ def _one_line(message, category, filename, lineno, file=None, line=None) -> None
     tqdm.write(f"optitact: warning: {message}", file=sys.stderr)
 
 
+#: :func:`main` set ``OPENBLAS_NUM_THREADS=1`` itself (NumPy was not loaded yet and the user had not set it).
+_BLAS_THREADS_SET = False
+
+
+def _one_blas_thread() -> None:
+    """Run OpenBLAS on one thread when the command line is the program (before NumPy loads it).
+
+    optitact parallelises over frames itself; OpenBLAS's own worker threads only busy-wait
+    (about 0.1 s of CPU at every start) on matrices this small. A user's setting is kept, and a
+    process that loaded NumPy before calling :func:`main` keeps its threads.
+    """
+    global _BLAS_THREADS_SET
+    if "numpy" not in sys.modules and "OPENBLAS_NUM_THREADS" not in os.environ:
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        _BLAS_THREADS_SET = True
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``optitact`` command; returns the exit code."""
+    _one_blas_thread()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser(argv[0] if argv and argv[0] in COMMANDS else None).parse_args(argv)
     try:
