@@ -46,11 +46,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import positive
+from ._validate import integer, positive
 from .errors import InputError, ShapeError
 from .steps import check_frames
 
-__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "reading_errors"]
+__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "coverage_spread", "reading_errors"]
 
 #: Half-width of the two-sided 90 % interval of a normal error, in standard errors.
 Z90 = 1.6448536269514722
@@ -289,3 +289,59 @@ def coverage(estimates, truth, stderr, *, z: float = Z90, where=None) -> np.ndar
     mask = np.ones(est.shape[:-1], bool) if where is None else np.asarray(where, bool)
     n = int(mask.sum())
     return inside[mask].mean(axis=0) if n else np.full(3, np.nan)
+
+
+def coverage_spread(estimates, truth, stderr, *, z: float = Z90, where=None, resamples: int = 1000,
+                    seed: int = 0) -> np.ndarray:
+    """Standard deviation of :func:`coverage` over frames drawn again with replacement (a bootstrap).
+
+    The elements of one frame share its load pattern and its errors, so
+    they are not independent samples: the spread of the coverage is that of
+    the frames. Resampling whole frames (the leading axis) gives it, where
+    ``sqrt(0.09 / n)`` over all ``n`` elements would understate it. A
+    coverage that misses 0.9 by more than about twice this spread misses it
+    beyond the luck of the frames drawn.
+
+    Parameters
+    ----------
+    estimates, truth, stderr : (T, E, 3) array_like
+        Per frame and element, as for :func:`coverage`.
+    z, where
+        As for :func:`coverage` (``where``: (T, E)).
+    resamples : int
+        Bootstrap draws (default 1000).
+    seed : int
+        Of the draws: the same seed gives the same spread.
+
+    Returns
+    -------
+    (3,) ndarray
+        Per axis; NaN with fewer than two frames holding a counted sample.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(2)
+    >>> se = np.full((200, 41, 3), 0.01)
+    >>> est = rng.normal(0.0, se)
+    >>> sd = coverage_spread(est, np.zeros_like(est), se)
+    >>> bool(np.all((sd > 0.001) & (sd < 0.004)))  # about sqrt(0.09 / 8200) = 0.0033
+    True
+    """
+    est, tru, se = (np.asarray(a, dtype=np.float64) for a in (estimates, truth, stderr))
+    if not est.shape == tru.shape == se.shape or est.ndim != 3 or est.shape[-1] != 3:
+        raise ShapeError(f"estimates, truth and stderr must have the same shape (T, E, 3), got {est.shape}, "
+                         f"{tru.shape} and {se.shape}")
+    resamples = integer(resamples, "resamples", minimum=2)
+    inside = np.abs(est - tru) <= positive(z, "z") * se
+    mask = np.ones(est.shape[:2], bool) if where is None else np.asarray(where, bool)
+    if mask.shape != est.shape[:2]:
+        raise ShapeError(f"where must have shape {est.shape[:2]}, got {mask.shape}")
+    hits = (inside & mask[..., None]).sum(axis=1).astype(np.float64)  # (T, 3) per frame
+    counts = mask.sum(axis=1).astype(np.float64)  # (T,)
+    keep = counts > 0
+    hits, counts = hits[keep], counts[keep]
+    if len(counts) < 2:
+        return np.full(3, np.nan)
+    draws = np.random.default_rng(seed).integers(0, len(counts), (resamples, len(counts)))
+    return (hits[draws].sum(axis=1) / counts[draws].sum(axis=1)[:, None]).std(axis=0, ddof=1)

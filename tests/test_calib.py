@@ -423,6 +423,7 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
             assert set(scores["coverage_90"]) == {"fx", "fy", "fz"}
             assert all(0.0 <= c <= 1.0 for c in scores["coverage_90"].values())
             assert set(scores["coverage_90_fit_residuals"]) == {"fx", "fy", "fz"}
+            assert all(0.0 <= sd < 0.5 for sd in scores["coverage_90_sd"].values())
     assert out["worst_family"]["coupled"]["fz"][0] in ("independent", "single")
 
 

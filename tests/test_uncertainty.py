@@ -201,6 +201,31 @@ def test_coverage_checks_its_input():
     assert np.isnan(coverage(np.zeros((2, 3)), np.zeros((2, 3)), np.ones((2, 3)), where=[False, False])).all()
 
 
+def test_coverage_spread_is_that_of_the_frames():
+    """Elements that share their frame's fate spread as T frames do; independent ones as T x E samples."""
+    from optitact.uncertainty import coverage_spread
+
+    rng = np.random.default_rng(4)
+    t_n, e_n = 400, 41
+    se = np.ones((t_n, e_n, 3))
+    # each frame's elements all inside (p = 0.9) or all outside its interval
+    shared = np.where(rng.random((t_n, 1, 1)) < 0.9, 0.0, 5.0) * np.ones((t_n, e_n, 3))
+    sd = coverage_spread(shared, np.zeros_like(shared), se, seed=1)
+    assert np.all(np.abs(sd / np.sqrt(0.09 / t_n) - 1.0) < 0.2), sd
+    independent = np.where(rng.random((t_n, e_n, 3)) < 0.9, 0.0, 5.0)
+    sd = coverage_spread(independent, np.zeros_like(independent), se, seed=1)
+    assert np.all(np.abs(sd / np.sqrt(0.09 / (t_n * e_n)) - 1.0) < 0.2), sd
+    again = coverage_spread(independent, np.zeros_like(independent), se, seed=1)
+    assert np.array_equal(sd, again)  # seeded
+    where = np.zeros((t_n, e_n), bool)
+    where[0] = True  # one frame counted: no spread to tell
+    assert np.isnan(coverage_spread(independent, np.zeros_like(independent), se, where=where)).all()
+    with pytest.raises(ShapeError, match="T, E, 3"):
+        coverage_spread(np.zeros((5, 3)), np.zeros((5, 3)), np.ones((5, 3)))
+    with pytest.raises(ShapeError, match="where"):
+        coverage_spread(independent, np.zeros_like(independent), se, where=np.ones(3, bool))
+
+
 # ----------------------------------------------------------------------------- where users see it
 def test_force_field_carries_the_errors_to_its_table_csv_and_plot(cal, tmp_path):
     pytest.importorskip("matplotlib")

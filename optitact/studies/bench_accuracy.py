@@ -12,7 +12,7 @@ import numpy as np
 from optitact._validate import integer
 from optitact.errors import InputError
 from optitact.camera import FisheyeCamera
-from optitact.uncertainty import coverage
+from optitact.uncertainty import coverage, coverage_spread
 
 __all__ = ["bench_accuracy"]
 
@@ -83,7 +83,9 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         :meth:`~optitact.calib.Calibration.stderr`: the frames' pixel noise,
         measured (:func:`frame_noise`), through
         :func:`optitact.uncertainty.reading_errors`, plus the model's error
-        measured on the validation set; without one, the fit residuals), and ``coverage_90_fit_residuals``
+        measured on the validation set; without one, the fit residuals), ``coverage_90_sd`` (its
+        standard deviation over the frames drawn again with replacement:
+        :func:`optitact.uncertainty.coverage_spread`) and ``coverage_90_fit_residuals``
         (the same with the fit residuals as the model error), over every loaded
         element sample (``Fz > 0``) of the
         first family's held-out set; ``families``: the same per family, and
@@ -182,10 +184,14 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                     if c is None:  # no validation set: the fit residuals' coverage is the one there is
                         scores[key] = scores["coverage_90_fit_residuals"]
                         continue
-                    cover = coverage(est, f_truth, c.stderr(f_read, errors, forces=est),
-                                     where=f_truth[..., 2] > 0)
+                    se = c.stderr(f_read, errors, forces=est)
+                    cover = coverage(est, f_truth, se, where=f_truth[..., 2] > 0)
                     scores[key] = {ax: round(float(v), 4) for ax, v in zip(("fx", "fy", "fz"), cover,
                                                                            strict=True)}
+                    if key == "coverage_90":  # its spread over the frames drawn: is a miss beyond luck?
+                        sd = coverage_spread(est, f_truth, se, where=f_truth[..., 2] > 0, seed=seed)
+                        scores["coverage_90_sd"] = {ax: round(float(v), 4) for ax, v in
+                                                    zip(("fx", "fy", "fz"), sd, strict=True)}
             out["families"][fam]["models"][model] = scores
     out["models"] = out["families"][families[0]]["models"]
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
