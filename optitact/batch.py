@@ -339,7 +339,8 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         if pipe._threads_request is None and pipe.threads > 1:  # a core is the decoder's
             pipe = pipe.replace(threads=pipe.threads - 1)
         h, w = pipe.camera.shape
-        frames = read_ahead(frames, depth=max(2, min(4 * batch, READ_AHEAD_BYTES // (h * w))))
+        # frames of up to 16 bits: 2 bytes a pixel
+        frames = read_ahead(frames, depth=max(2, min(4 * batch, READ_AHEAD_BYTES // (2 * h * w))))
     with sink, closing(frames), tqdm(total=n_frames, unit="frame", desc="process", file=sys.stderr,
                                      disable=not progress) as bar:
         base, head, pairs = take_baseline(frames, n_base, frame=lambda item: item[1])
