@@ -53,7 +53,7 @@ SKIPPED = {
     "pip install -e '.[test]' && pytest": "an install, then the whole test suite",
     "optitact calibrate generate --frames 200 --pattern blend --seed 0 --out dome41.zarr":
         "regenerates the shipped calibration's set (minutes)",
-    "optitact calibrate generate --frames 20 --pattern blend --seed 900 --render-mode pixels --spp 256 "
+    "optitact calibrate generate --frames 60 --pattern blend --seed 900 --render-mode pixels --spp 256 "
     "--out val.zarr": "the shipped calibration's validation set (path-traced, minutes)",
     "optitact calibrate fit dome41.zarr --joint --validation val.zarr --out calib/data/dome41.json "
     "--plot fit.png": "overwrites the shipped calibration, from the sets above",

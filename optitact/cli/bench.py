@@ -109,10 +109,10 @@ def add_parsers(sub) -> None:
     bacc.add_argument("--families", nargs="+", default=None, metavar="FAMILY",
                       help="load-pattern families of the held-out sets, each its own set: independent, "
                            "uniform, single, clustered, checkerboard, shear, or all (default: all)")
-    bacc.add_argument("--validation-frames", type=int, default=20, metavar="N",
+    bacc.add_argument("--validation-frames", type=int, default=60, metavar="N",
                       help="frames of the validation set (rendered like the held-out sets, blend pattern, "
                            "seed + 900) on which each model's own error is measured for the error bars; 0: "
-                           "none (default 20)")
+                           "none (default 60: ten frames of each family)")
     bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this held-out set instead of generating one")
     bstab = bsub.add_parser(

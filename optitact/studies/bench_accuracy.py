@@ -23,7 +23,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                    variant: str | None = None, plot=None, contact_min_n: float = 0.01,
                    render_mode: str = "two_stage", test_render_mode: str = "pixels",
                    families=("independent",), design_pattern: str = "independent",
-                   validation_frames: int = 20) -> dict:
+                   validation_frames: int = 60) -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -68,7 +68,9 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         ``test_spp``) with the ``blend`` pattern and seed ``seed + 900``, it
         measures each model's own error
         (:meth:`~optitact.calib.Calibration.validated`) for the error bars;
-        neither the curves nor any held-out set see it.
+        neither the curves nor any held-out set see it. Default 60: ten
+        frames of each family (with 20, the error models' floors rested on
+        about three frames a family).
 
     Returns
     -------
