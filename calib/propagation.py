@@ -162,7 +162,7 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
     if with_model_error:
         if cal.error_model is not None:
             est = cal.forces(readings)[0] if forces is None else np.asarray(forces)
-            var = var + cal.error_model.sigma(est[..., 2]) ** 2
+            var = var + cal.error_model.sigma(est[..., 2], np.hypot(est[..., 0], est[..., 1])) ** 2
         else:
             var = var + model_error(cal) ** 2
     return np.sqrt(var)

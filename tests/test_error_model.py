@@ -37,6 +37,28 @@ def test_fit_recovers_a_known_error_law():
     assert m.samples == 20000 and m.source == "synthetic"
 
 
+def test_fit_recovers_a_known_law_with_a_shear_part():
+    """sigma^2 = s^2 + a^2 + (b Fz)^2 + (c Ft)^2: (a, b, c) come back; c = 0 where the law has none."""
+    rng = np.random.default_rng(7)
+    n = 40000
+    fz, ft = rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 0.35, n)
+    shear = np.array([0.02, 0.0, 0.015])
+    s = rng.uniform(0.0, 0.002, (n, 3))
+    sigma = np.sqrt(s**2 + FLOOR**2 + (RELATIVE * fz[:, None]) ** 2 + (shear * ft[:, None]) ** 2)
+    m = ErrorModel.fit(rng.normal(size=(n, 3)) * sigma, s, fz, ft)
+    np.testing.assert_allclose(m.floor_n, FLOOR, rtol=0.1, atol=0)
+    np.testing.assert_allclose(m.relative, RELATIVE, rtol=0.08, atol=0.0008)
+    np.testing.assert_allclose(m.shear, shear, rtol=0.08, atol=0.002)
+    np.testing.assert_allclose(m.sigma(fz[:5], ft[:5]), np.sqrt(sigma[:5] ** 2 - s[:5] ** 2), rtol=0.08)
+    back = ErrorModel.from_dict(m.to_dict())
+    np.testing.assert_array_equal(back.shear, m.shear)
+    old = {k: v for k, v in m.to_dict().items() if k != "shear"}  # a file written before the shear part
+    assert not ErrorModel.from_dict(old).shear.any()
+    assert not ErrorModel.fit(*draw(np.random.default_rng(8), 500)[:3]).shear.any()  # no ft: no shear part
+    with pytest.raises(ShapeError, match="ft"):
+        ErrorModel.fit(m.floor_n[None].repeat(30, 0), np.zeros((30, 3)), np.ones(30), np.ones(29))
+
+
 def test_fitted_error_bars_cover_ninety_percent_of_fresh_draws():
     res, s, fz, _ = draw(np.random.default_rng(1), 5000)
     m = ErrorModel.fit(res, s, fz)

@@ -163,8 +163,10 @@ def test_model_error_adds_in_quadrature_and_stacks_work(cal):
     r = _readings(cal, 4, n=3)
     cov = _cov(r)
     noise = cal.stderr(r, ReadingErrors(cov), model_error=False)
-    # the shipped calibration's error measured on validation frames, at each estimated Fz
-    measured = cal.error_model.sigma(cal.forces(r)[0][..., 2])
+    # the shipped calibration's error measured on validation frames, at each estimated Fz and shear
+    est = cal.forces(r)[0]
+    measured = cal.error_model.sigma(est[..., 2], np.hypot(est[..., 0], est[..., 1]))
+    assert cal.error_model.shear.any() and np.any(measured != cal.error_model.sigma(est[..., 2]))
     np.testing.assert_allclose(cal.stderr(r, ReadingErrors(cov)) ** 2, noise**2 + measured**2, rtol=1e-12)
     fitted = replace(cal, error_model=None)  # without one: the fit residuals
     both = fitted.stderr(r, ReadingErrors(cov))
