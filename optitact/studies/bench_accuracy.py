@@ -331,7 +331,9 @@ def _plot_families(out: dict, path):
         ax.set_xticklabels(fams, rotation=30, ha="right")
         ax.set_ylim(0.5, 1.08)
         ax.set_ylabel("fraction of true forces inside")
-        ax.set_title(f"{last}: 90 % intervals per load family")
+        # without a validation set the intervals hold the fit residuals as the model error
+        ax.set_title(f"{last}: 90 % intervals per load family" if "validation_set" in out else
+                     f"{last}: 90 % intervals (fit residuals: no validation set)")
         ax.legend(fontsize=8, ncol=4, loc="upper center")
     fig.suptitle(f"calibration set: {out['calibration_set']['path'].rsplit('/', 1)[-1]}; held-out "
                  f"{out['test_set']['render_mode']} at {out['test_spp']} spp", fontsize=10)
