@@ -92,6 +92,11 @@ class ErrorModel:
         ft = np.abs(np.asarray(ft, dtype=np.float64))[..., None]
         return np.sqrt(self.floor_n**2 + (self.relative * fz) ** 2 + (self.shear * ft) ** 2)
 
+    def at(self, forces) -> np.ndarray:
+        """The model error (..., 3) N of estimated element-local forces ``forces`` (..., 3) N."""
+        f = np.asarray(forces, dtype=np.float64)
+        return self.sigma(f[..., 2], np.hypot(f[..., 0], f[..., 1]))
+
     @classmethod
     def fit(cls, residuals, noise_se, fz, ft=None, *, source: str = "") -> ErrorModel:
         """Maximum-likelihood floor, relative and shear parts from residuals beside the readings' own noise.

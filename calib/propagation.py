@@ -161,8 +161,7 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
         var = np.where(np.asarray(readings.contact, bool)[..., None], var, 0.0)
     if with_model_error:
         if cal.error_model is not None:
-            est = cal.forces(readings)[0] if forces is None else np.asarray(forces)
-            var = var + cal.error_model.sigma(est[..., 2], np.hypot(est[..., 0], est[..., 1])) ** 2
+            var = var + cal.error_model.at(cal.forces(readings)[0] if forces is None else forces) ** 2
         else:
             var = var + model_error(cal) ** 2
     return np.sqrt(var)

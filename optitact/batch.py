@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import itertools
 import os
-from contextlib import closing
 import sys
 import time
 from collections.abc import Iterable, Sequence
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -186,14 +186,11 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                     if c is None:  # no validation set: the fit residuals' coverage is the one there is
                         scores[key] = scores["coverage_90_fit_residuals"]
                         continue
-                    se = c.stderr(f_read, errors, forces=est)
-                    cover = coverage(est, f_truth, se, where=f_truth[..., 2] > 0)
-                    scores[key] = {ax: round(float(v), 4) for ax, v in zip(("fx", "fy", "fz"), cover,
-                                                                           strict=True)}
+                    se, loaded = c.stderr(f_read, errors, forces=est), f_truth[..., 2] > 0
+                    scores[key] = _per_axis(coverage(est, f_truth, se, where=loaded))
                     if key == "coverage_90":  # its spread over the frames drawn: is a miss beyond luck?
-                        sd = coverage_spread(est, f_truth, se, where=f_truth[..., 2] > 0, seed=seed)
-                        scores["coverage_90_sd"] = {ax: round(float(v), 4) for ax, v in
-                                                    zip(("fx", "fy", "fz"), sd, strict=True)}
+                        scores["coverage_90_sd"] = _per_axis(coverage_spread(est, f_truth, se, where=loaded,
+                                                                             seed=seed))
             out["families"][fam]["models"][model] = scores
     out["models"] = out["families"][families[0]]["models"]
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
@@ -286,6 +283,11 @@ def _scores(est, truth, clamped, readings, fs, ring, contact_min_n) -> dict:
 
 #: Targets of the accuracy bench (% of full scale): Fz of 1 N, Fx and Fy of 0.5 N.
 TARGET_PCT_FS = {"fx": 1.0, "fy": 1.0, "fz": 0.5}
+
+
+def _per_axis(values) -> dict:
+    """``{"fx": ..., "fy": ..., "fz": ...}`` of three values, rounded to 4 decimals."""
+    return {ax: round(float(v), 4) for ax, v in zip(("fx", "fy", "fz"), values, strict=True)}
 
 
 def _plot_families(out: dict, path):

@@ -97,16 +97,21 @@ def recording(width: int, height: int, codec: str, *, frames: int, seed: int) ->
 
 
 def _run(cmd: list[str], env: dict) -> tuple[float, float]:
-    """Wall and CPU seconds (user + system, the OS's accounting of the child) of one run of ``cmd``."""
-    t = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    err = proc.stderr.read().decode(errors="replace")
-    proc.stderr.close()
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {err.strip()[-2000:]}")
+    """Wall and CPU seconds (user + system, the OS's accounting of the child) of one run of ``cmd``.
+
+    The child's stderr goes to a file, not a pipe: a full pipe would block a child that prints
+    more than the pipe holds while this process waits for it to exit.
+    """
+    with tempfile.TemporaryFile() as err:
+        t = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode != 0:
+            err.seek(0)
+            text = err.read().decode(errors="replace").strip()
+            raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {text[-2000:]}")
     return wall, usage.ru_utime + usage.ru_stime
 
 
@@ -149,14 +154,13 @@ def bench_process(sizes=((640, 480), (1280, 960)), *, codecs=("MJPG",), frames: 
     """
     from tqdm import tqdm
 
+    from optitact import cli
     from optitact.calib import default_calibration
     from optitact.camera import FisheyeCamera
 
     frames = integer(frames, "frames", minimum=NOLOAD_FRAMES + 1)
     repeats = integer(repeats, "repeats", minimum=1)
     shipped = default_calibration().camera
-    from optitact import cli
-
     # the children as a user's shell runs them: bytecode cached (a session may turn caching off),
     # without the OpenBLAS setting this command line made for itself
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
