@@ -11,7 +11,6 @@ after a denoising filter (NumPy only).
 
 from __future__ import annotations
 
-import itertools
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -22,8 +21,8 @@ from .readings import Readings
 from .steps import (G_MIN, _saturation_level, add_clipped_tail, denoise, filter_radius, readings_from_moments,
                     subtract_baseline)
 
-__all__ = ["MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit", "kernel_args", "run_split",
-           "thread_count"]
+__all__ = ["BLOCKS_PER_THREAD", "MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit",
+           "kernel_args", "run_blocks", "thread_count"]
 
 #: With ``threads=None`` a stack is split so that each thread gets at least this many frames.
 MIN_FRAMES_PER_THREAD = 8
@@ -48,21 +47,51 @@ def _pool(n: int) -> ThreadPoolExecutor:
     return pool
 
 
-def run_split(fn, bounds) -> list:
-    """``[fn(a, b) for consecutive (a, b) in bounds]``, the parts run at once on as many threads.
+#: :func:`run_blocks` cuts a stack into about this many blocks per thread.
+BLOCKS_PER_THREAD = 4
 
-    The calling thread runs the first part itself and the others run on a
-    pool kept between calls; results come in order.
+
+def run_blocks(fn, n: int, n_threads: int) -> list:
+    """``[fn(a, b) for blocks (a, b) covering 0 .. n - 1]`` on ``n_threads`` threads taking blocks as they go.
+
+    The items are cut into about :data:`BLOCKS_PER_THREAD` blocks per thread,
+    and each thread (the caller and ``n_threads - 1`` pool workers) takes the
+    next block when it has finished one: a core slowed by other work
+    (another process, a busy laptop) does fewer blocks instead of holding
+    up the whole stack, as an even split in ``n_threads`` parts would.
+    Results come in block order. The first error stops the handing out of
+    blocks and reaches the caller once every thread has stopped.
     """
-    parts = list(itertools.pairwise(int(b) for b in bounds))
-    if len(parts) == 1:
-        return [fn(*parts[0])]
-    futures = [_pool(len(parts) - 1).submit(fn, a, b) for a, b in parts[1:]]
+    if n_threads <= 1 or n <= 1:
+        return [fn(0, n)]
+    size = -(-n // (n_threads * BLOCKS_PER_THREAD))
+    starts = range(0, n, size)
+    todo = iter(starts)
+    lock = threading.Lock()
+    results: dict = {}
+    failed: list = []
+
+    def work() -> None:
+        while not failed:
+            with lock:
+                a = next(todo, None)
+            if a is None:
+                return
+            try:
+                results[a] = fn(a, min(a + size, n))
+            except BaseException as exc:
+                failed.append(exc)
+                raise
+
+    futures = [_pool(n_threads - 1).submit(work) for _ in range(n_threads - 1)]
     try:
-        first = fn(*parts[0])
+        work()
     finally:
-        rest = [f.result() for f in futures]
-    return [first, *rest]
+        for f in futures:
+            f.exception()  # waits; the first error is in failed
+    if failed:
+        raise failed[0]
+    return [results[a] for a in starts]
 
 
 def kernel_args(pipe, dtype: np.dtype) -> tuple:
@@ -100,12 +129,8 @@ def fast_compiled(pipe, stack: np.ndarray, single: bool) -> Readings:
     flags = np.zeros((2, t_n, n_el), bool)
     u = np.zeros((t_n, n_el, 2))
     out = (sums, u, flags)
-    n_threads = pipe.threads_for(t_n) if t_n > 1 else 1
-    if n_threads == 1:
-        _kernel.lit_sums(flat, 0, t_n, args, out)
-    else:
-        run_split(lambda a, b: _kernel.lit_sums(flat, a, b, args, out),
-                  np.linspace(0, t_n, n_threads + 1).astype(int))
+    run_blocks(lambda a, b: _kernel.lit_sums(flat, a, b, args, out), t_n,
+               pipe.threads_for(t_n) if t_n > 1 else 1)
     out = (Readings(sums[0, 0], u[0], flags[1, 0], flags[0, 0]) if single
            else Readings(sums[0], u, flags[1], flags[0]))
     if pipe.tail == "gaussian":

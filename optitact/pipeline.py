@@ -39,7 +39,7 @@ import os
 import numpy as np
 
 from . import _kernel
-from ._fastpath import fast_compiled, fast_numpy, run_split, thread_count
+from ._fastpath import fast_compiled, fast_numpy, run_blocks, thread_count
 from .baseline import impulse_floor, take_baseline
 from ._validate import integer, positive
 from .camera import Camera
@@ -512,9 +512,8 @@ class Pipeline:
         else:
             step = min(max(CHUNK_ENTRIES // max(len(self.region_weights.pixel), 1), 1), CHUNK_FRAMES)
             chunks = [stack[i:i + step] for i in range(0, len(stack), step)]
-            n = min(self.threads_for(len(stack)), len(chunks))
-            bounds = np.linspace(0, len(chunks), n + 1).astype(int)
-            parts = [r for part in run_split(lambda a, b: [fast_numpy(self, c) for c in chunks[a:b]], bounds)
+            parts = [r for part in run_blocks(lambda a, b: [fast_numpy(self, c) for c in chunks[a:b]],
+                                              len(chunks), min(self.threads_for(len(stack)), len(chunks)))
                      for r in part]  # in frame order
             out = parts[0] if len(parts) == 1 else Readings.stack(parts)
         return out[0] if single else out

@@ -13,6 +13,8 @@ import json
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 import warnings
 from pathlib import Path
 
@@ -170,17 +172,50 @@ def test_threaded_batch_equals_serial(pipes, kernel):
 
 def test_default_threads_split_long_stacks_only(pipes):
     """threads=None: every core, at least MIN_FRAMES_PER_THREAD frames each; readings as one thread's."""
-    from optitact._fastpath import MIN_FRAMES_PER_THREAD, run_split, thread_count
+    from optitact._fastpath import MIN_FRAMES_PER_THREAD, thread_count
 
     assert thread_count(None, 4, 1) == 1 and thread_count(None, 4, 2 * MIN_FRAMES_PER_THREAD - 1) == 1
     assert thread_count(None, 4, 2 * MIN_FRAMES_PER_THREAD) == 2 and thread_count(None, 4, 1000) == 4
     assert thread_count(3, 16, 2) == 2 and thread_count(1, 16, 1000) == 1
-    assert run_split(lambda a, b: list(range(a, b)), [0, 2, 5, 9]) == [[0, 1], [2, 3, 4], [5, 6, 7, 8]]
-    with pytest.raises(ZeroDivisionError):  # a failing part's error reaches the caller
-        run_split(lambda a, b: 1 / (b - 5), [0, 2, 5])
     p = pipes[np.uint8][0].replace(kernel="auto", threads=None)
     frames, _ = random_frames(np.uint8, n=4 * MIN_FRAMES_PER_THREAD + 3, seed=5)
     assert_identical(p.process(frames), p.replace(threads=1).process(frames))
+
+
+def test_run_blocks_covers_every_item_once_in_order():
+    """Blocks cover 0 .. n - 1 once, results in block order, whichever thread took a block."""
+    from optitact._fastpath import BLOCKS_PER_THREAD, run_blocks
+
+    for n, threads in ((1, 2), (5, 1), (7, 3), (1000, 2), (2 * BLOCKS_PER_THREAD + 1, 2)):
+        parts = run_blocks(lambda a, b: list(range(a, b)), n, threads)
+        assert [i for p in parts for i in p] == list(range(n))
+        assert len(parts) <= threads * BLOCKS_PER_THREAD or threads == 1
+    seen = set()
+
+    def slow_first(a, b):  # the block of 0 holds its thread up: the others take the rest
+        seen.add(threading.get_ident())
+        if a == 0:
+            time.sleep(0.2)
+        return b - a
+
+    assert sum(run_blocks(slow_first, 64, 2)) == 64 and len(seen) == 2
+
+
+def test_run_blocks_errors_reach_the_caller():
+    from optitact._fastpath import run_blocks
+
+    done = []
+
+    def fail_at_5(a, b):
+        if a <= 5 < b:
+            raise ZeroDivisionError("block with 5")
+        time.sleep(0.001)
+        done.append(a)
+        return a
+
+    with pytest.raises(ZeroDivisionError, match="block with 5"):
+        run_blocks(fail_at_5, 10_000, 2)  # 8 blocks; the first one fails at once
+    assert len(done) <= 3  # the first error stopped the handing out of blocks
 
 
 def test_kernel_and_threads_options(pipes):

@@ -180,13 +180,14 @@ def test_bench_pipeline_json(capsys):
                  "--repeats", "1"]) == 0
     out = json.loads(capsys.readouterr().out)
     size = out["80x60"]
-    assert out["cores"] >= 1 and out["kernel"] in ("numba", "numpy")
+    assert out["cores"] >= 1 and out["kernel"] in ("numba", "numpy") and out["warm_passes"] >= 1
     assert set(size["loads"]) == {"1", "41"} and set(out["table"]["80x60"]) == {"1", "41"}
     for n, row in size["loads"].items():
-        for key in ("fast", "numpy", "floor", "batch_1thread", "batch_threads", "floor_1thread",
-                    "floor_threads", "reference"):
+        for key in ("fast", "fast_after_flush", "numpy", "floor", "batch_1thread", "batch_threads",
+                    "floor_1thread", "floor_threads", "reference"):
             assert row[f"{key}_us"] > 0 and row[f"{key}_cpu_us"] >= 0
         assert row["fast_over_floor"] > 0 and row["threads_speedup"] > 0 and row["speedup"] > 0
+        assert row["fast_after_flush_over_floor"] > 0
         # exactness: the fast path against the reference, and the NumPy fallback bit for bit
         assert row["max_G_rel_diff"] < 1e-9 and row["max_u_diff_mm"] < 1e-9
         assert row["flags_identical"] and row["kernels_identical"]
