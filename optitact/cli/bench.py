@@ -64,9 +64,10 @@ def add_parsers(sub) -> None:
         description="At each size and number of loaded elements, render a frame two-stage (the contact "
                     "patches over a dark background, milliseconds), expose it with several noise seeds, "
                     "and time side by side in each repeat: the fast pipeline frame by frame (compiled "
-                    "kernel and NumPy fallback), a long stack on one thread and on every core, one pass "
-                    "over the frame (np.count_nonzero(frame > t)) frame by frame and over the stack, and "
-                    "the reference; report CPU and wall medians per frame, the ratios to one pass, the "
+                    "kernel and NumPy fallback; warm, after five untimed passes as on a stream, and its "
+                    "first pass after the long stacks), a long stack on one thread and on every core, one "
+                    "pass over the frame (np.count_nonzero(frame > t)) frame by frame and over the stack, "
+                    "and the reference; report CPU and wall medians per frame, the ratios to one pass, the "
                     "fast-vs-reference differences, the precompute cold and cached and the start-up "
                     "to a first frame. One JSON object on stdout.")
     bpipe.add_argument("--size", nargs="+", default=["320x240", "640x480", "1280x960", "1920x1440"],
