@@ -60,7 +60,8 @@ def run_blocks(fn, n: int, n_threads: int) -> list:
     (another process, a busy laptop) does fewer blocks instead of holding
     up the whole stack, as an even split in ``n_threads`` parts would.
     Results come in block order. The first error stops the handing out of
-    blocks and reaches the caller once every thread has stopped.
+    blocks and reaches the caller (whichever thread met it) once every
+    thread has stopped.
     """
     if n_threads <= 1 or n <= 1:
         return [fn(0, n)]
@@ -86,11 +87,14 @@ def run_blocks(fn, n: int, n_threads: int) -> list:
     futures = [_pool(n_threads - 1).submit(work) for _ in range(n_threads - 1)]
     try:
         work()
+    except BaseException as exc:  # in failed already, unless it came between blocks (an interrupt)
+        if not any(exc is f for f in failed):
+            failed.insert(0, exc)
     finally:
         for f in futures:
-            f.exception()  # waits; the first error is in failed
+            f.exception()  # waits
     if failed:
-        raise failed[0]
+        raise failed[0]  # the first error, whichever thread met it
     return [results[a] for a in starts]
 
 
@@ -187,6 +191,7 @@ def fast_numpy(pipe, stack: np.ndarray, single: bool = False) -> Readings:
     else:
         out = readings_from_moments(g_sum, m, saturated, pipe.floor, weight=w_sum)
     return add_clipped_tail(out, w_sum) if pipe.tail == "gaussian" else out
+
 
 def filtered_lit(pipe, flat: np.ndarray):
     """Lit entries after the filter, computed on the crop that holds the regions plus the filter's reach."""

@@ -217,6 +217,15 @@ def test_run_blocks_errors_reach_the_caller():
         run_blocks(fail_at_5, 10_000, 2)  # 8 blocks; the first one fails at once
     assert len(done) <= 3  # the first error stopped the handing out of blocks
 
+    def all_fail(a, b):  # the pool worker's block fails at once, the caller's later: the worker's error wins
+        if threading.current_thread() is threading.main_thread():
+            time.sleep(0.05)
+            raise ValueError("the caller's")
+        raise ValueError("the worker's")
+
+    with pytest.raises(ValueError, match="the worker's"):
+        run_blocks(all_fail, 64, 2)
+
 
 def test_kernel_and_threads_options(pipes):
     p = pipes[np.uint8][0]
