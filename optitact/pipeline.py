@@ -206,10 +206,12 @@ class Pipeline:
         when it is installed; :attr:`kernel` says which runs. Frames with a
         filter always take NumPy.
     threads : int, optional
-        Threads a ``(T, H, W)`` stack is split across, frames in consecutive
-        parts (the compiled kernel releases the GIL; the threads are kept
-        between calls); the readings are the same as one thread's, in frame
-        order. Default: every core this process may use, with at least
+        Threads a ``(T, H, W)`` stack is split across, in blocks of
+        consecutive frames (about four a thread) that each thread takes as it
+        finishes the last, so a core slowed by other work holds up no more
+        than its block (the compiled kernel releases the GIL; the threads are
+        kept between calls); the readings are the same as one thread's, in
+        frame order. Default: every core this process may use, with at least
         ``MIN_FRAMES_PER_THREAD`` (8) frames each, so single frames and short
         stacks stay on the calling thread. ``threads=1``: never split.
     tail : {"none", "gaussian"}
