@@ -124,11 +124,11 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
     with_model_error : bool
         Add the model error in quadrature (default): the calibration's
         measured :class:`~optitact.calib.error_model.ErrorModel` at each
-        element's estimated Fz where it has one
+        element's estimated forces (its Fz and shear) where it has one
         (:meth:`~optitact.calib.Calibration.validated`), else :func:`model_error`.
     forces : ndarray, optional
         ``cal.forces(readings)[0]`` when already made (the measured error
-        model is read at their Fz; otherwise they are computed again).
+        model is read at them; otherwise they are computed again).
 
     Returns
     -------

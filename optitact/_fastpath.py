@@ -112,8 +112,7 @@ def kernel_args(pipe, dtype: np.dtype) -> tuple:
         floor = np.ascontiguousarray(pipe.floor, np.float64)
         # the smallest index types: the lit pixels' look-ups stay in cache
         label = fold.label.astype(np.uint8 if pipe.grids.n_elements <= 255 else np.int32)
-        pipe._levels[key] = (label, more, np.ascontiguousarray(fent), watched, cpix, centry, clevel, params,
-                             floor)
+        pipe._levels[key] = (label, more, fent, watched, cpix, centry, clevel, params, floor)
     return pipe._levels[key]
 
 

@@ -206,19 +206,19 @@ def chunks(pixel: np.ndarray, level: np.ndarray, n_pixels: int) -> tuple:
     same = pixel[1:] == pixel[:-1]
     if np.any(level[1:][same] != level[:-1][same]):  # baselines and thresholds are per pixel
         raise ValueError("chunks: entries of one pixel must share its lit level")
-    starts, first = [], []
+    starts, opens = [], []  # each chunk's first pixel, and the entry that opens it
     i, n = 0, len(pixel)
     while i < n:
         p0 = min(int(pixel[i]), n_pixels - CHUNK)
         starts.append(p0)
-        first.append(i)
+        opens.append(i)
         i = int(np.searchsorted(pixel, p0 + CHUNK, "left"))
     cpix = np.asarray(starts, np.intp)
-    k = np.repeat(np.arange(len(cpix)), np.diff(np.append(first, n)))
+    k = np.repeat(np.arange(len(cpix)), np.diff(np.append(opens, n)))
     slot = k * CHUNK + pixel - cpix[k]
     more = np.zeros(n, bool)
     more[:-1] = same
-    first = np.ones(n, bool)
+    first = np.ones(n, bool)  # the first entry of its pixel
     first[1:] = ~more[:-1]
     centry = np.full(len(cpix) * CHUNK, -1, np.int32 if n < 2**31 else np.intp)  # small: stays in cache
     centry[slot[first]] = np.flatnonzero(first)

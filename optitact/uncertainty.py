@@ -281,14 +281,25 @@ def coverage(estimates, truth, stderr, *, z: float = Z90, where=None) -> np.ndar
     >>> [round(float(c), 2) for c in coverage(est, np.zeros_like(est), se)]
     [0.9, 0.9, 0.9]
     """
-    est, tru, se = (np.asarray(a, dtype=np.float64) for a in (estimates, truth, stderr))
-    if not est.shape == tru.shape == se.shape or est.shape[-1:] != (3,):
-        raise ShapeError(f"estimates, truth and stderr must have the same shape (..., 3), got {est.shape}, "
-                         f"{tru.shape} and {se.shape}")
-    inside = np.abs(est - tru) <= positive(z, "z") * se
-    mask = np.ones(est.shape[:-1], bool) if where is None else np.asarray(where, bool)
+    inside, mask = _inside(estimates, truth, stderr, z, where)
     n = int(mask.sum())
     return inside[mask].mean(axis=0) if n else np.full(3, np.nan)
+
+
+def _inside(estimates, truth, stderr, z: float, where, stack: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each true value is inside its interval (..., 3), and the samples counted (...).
+
+    ``stack``: the arrays must be (T, E, 3), frames by elements.
+    """
+    est, tru, se = (np.asarray(a, dtype=np.float64) for a in (estimates, truth, stderr))
+    if not est.shape == tru.shape == se.shape or est.shape[-1:] != (3,) or (stack and est.ndim != 3):
+        shape = "(T, E, 3)" if stack else "(..., 3)"
+        raise ShapeError(f"estimates, truth and stderr must have the same shape {shape}, got {est.shape}, "
+                         f"{tru.shape} and {se.shape}")
+    mask = np.ones(est.shape[:-1], bool) if where is None else np.asarray(where, bool)
+    if mask.shape != est.shape[:-1]:
+        raise ShapeError(f"where must have shape {est.shape[:-1]}, got {mask.shape}")
+    return np.abs(est - tru) <= positive(z, "z") * se, mask
 
 
 def coverage_spread(estimates, truth, stderr, *, z: float = Z90, where=None, resamples: int = 1000,
@@ -328,15 +339,8 @@ def coverage_spread(estimates, truth, stderr, *, z: float = Z90, where=None, res
     >>> bool(np.all((sd > 0.001) & (sd < 0.004)))  # about sqrt(0.09 / 8200) = 0.0033
     True
     """
-    est, tru, se = (np.asarray(a, dtype=np.float64) for a in (estimates, truth, stderr))
-    if not est.shape == tru.shape == se.shape or est.ndim != 3 or est.shape[-1] != 3:
-        raise ShapeError(f"estimates, truth and stderr must have the same shape (T, E, 3), got {est.shape}, "
-                         f"{tru.shape} and {se.shape}")
+    inside, mask = _inside(estimates, truth, stderr, z, where, stack=True)
     resamples = integer(resamples, "resamples", minimum=2)
-    inside = np.abs(est - tru) <= positive(z, "z") * se
-    mask = np.ones(est.shape[:2], bool) if where is None else np.asarray(where, bool)
-    if mask.shape != est.shape[:2]:
-        raise ShapeError(f"where must have shape {est.shape[:2]}, got {mask.shape}")
     hits = (inside & mask[..., None]).sum(axis=1).astype(np.float64)  # (T, 3) per frame
     counts = mask.sum(axis=1).astype(np.float64)  # (T,)
     keep = counts > 0

@@ -96,9 +96,10 @@ def add_parsers(sub) -> None:
     fitp.add_argument("--validation", type=Path, default=None, metavar="VAL.zarr",
                       help="a finished set the fit does not see (other seeds; rendered like the frames the "
                            "calibration will read, e.g. --render-mode pixels): the calibration's own error is "
-                           "measured on it (a floor plus a part growing with Fz, per axis) and kept in the "
-                           "file for the error bars (process --stderr); it holds the validation frames' noise "
-                           "too, so give --dn-per-electron to process only for noisier frames")
+                           "measured on it (a floor plus parts growing with Fz and with the shear, per axis) "
+                           "and kept in the file for the error bars (process --stderr); it holds the "
+                           "validation frames' noise too, so give --dn-per-electron to process only for "
+                           "noisier frames")
     fitp.add_argument("--partial", action="store_true",
                       help="fit the finished frames of an incomplete set (a killed or running generate); "
                            "without it an incomplete set is refused with how many frames are done")
@@ -124,8 +125,8 @@ def add_parsers(sub) -> None:
     test.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
     test.add_argument("--validated", type=Path, default=None, metavar="OUT.json",
                       help="also write the calibration with its error measured on these presses (a floor plus "
-                           "a part growing with Fz, per axis; kept for process --stderr), e.g. on presses of "
-                           "your own sensor that the calibration was not fitted on")
+                           "parts growing with Fz and with the shear, per axis; kept for process --stderr), "
+                           "e.g. on presses of your own sensor that the calibration was not fitted on")
     test.set_defaults(run=run_test)
 
 
@@ -225,7 +226,8 @@ def _validated(cal, set_path, val_path):
     m = out.error_model
     print(f"optitact: error measured on {m.samples} validation samples: floor Fx {m.floor_n[0]:.4f}, Fy "
           f"{m.floor_n[1]:.4f}, Fz {m.floor_n[2]:.4f} N, plus Fx {m.relative[0]:.4f}, Fy {m.relative[1]:.4f}, "
-          f"Fz {m.relative[2]:.4f} N per N of Fz", file=sys.stderr)
+          f"Fz {m.relative[2]:.4f} N per N of Fz and Fx {m.shear[0]:.4f}, Fy {m.shear[1]:.4f}, "
+          f"Fz {m.shear[2]:.4f} N per N of shear", file=sys.stderr)
     return out
 
 

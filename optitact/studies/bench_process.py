@@ -157,6 +157,7 @@ def bench_process(sizes=((640, 480), (1280, 960)), *, codecs=("MJPG",), frames: 
     from optitact import cli
     from optitact.calib import default_calibration
     from optitact.camera import FisheyeCamera
+    from optitact.pipeline import _cores
 
     frames = integer(frames, "frames", minimum=NOLOAD_FRAMES + 1)
     repeats = integer(repeats, "repeats", minimum=1)
@@ -192,4 +193,4 @@ def bench_process(sizes=((640, 480), (1280, 960)), *, codecs=("MJPG",), frames: 
                 n_rows = sum(1 for _ in fh) - 1
             rows[f"{w}x{h}-{codec}"] = {"frames": frames, "calibration": "default" if calibrated else None,
                                         "table_rows": n_rows, **_median_row(times, names)}
-    return {"frames": frames, "repeats": repeats, "cores": len(os.sched_getaffinity(0)), "rows": rows}
+    return {"frames": frames, "repeats": repeats, "cores": _cores(), "rows": rows}
