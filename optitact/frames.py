@@ -39,12 +39,15 @@ from .camera import check_frame_size
 from .errors import InputError, OptitactWarning, ShapeError
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "check_codec",
-           "expand_sources", "count_frames", "iter_frames", "read_ahead"]
+           "expand_sources", "count_frames", "iter_frames", "read_ahead", "read_ahead_depth", "ReadAhead"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".wmv", ".mpg", ".mpeg")
 _ARRAY_SUFFIXES = (".npy",)
 _END = object()  # read_ahead: the items are done
+_GREY8 = int.from_bytes(b"Y800", "little")  # OpenCV's CAP_PROP_CODEC_PIXEL_FORMAT of 8-bit grey video
+#: Grey levels that :func:`read_ahead_depth` lets a batch run decode ahead of the frames being processed.
+READ_AHEAD_BYTES = 64 << 20
 
 #: Video codecs (FOURCC, lower case, spaces stripped; "" is raw video) that store frames exactly.
 LOSSLESS_CODECS = frozenset({
@@ -248,21 +251,29 @@ def iter_frames(files: Sequence[Path]) -> Iterator[tuple[str, np.ndarray]]:
             yield f.name, _grey(img, str(f))
 
 
-def read_ahead(items: Iterable, depth: int) -> Iterator:
-    """``items`` in order, produced up to ``depth`` ahead by a background thread.
+class ReadAhead:
+    """Items of an iterable in order, produced up to ``depth`` ahead by a background thread.
 
-    Frames decode (OpenCV releases the GIL) while the caller works on the
-    ones before them. An exception of ``items`` (a corrupt frame, a warning
-    turned into an error) is raised here, at the item where it happened.
-    Closing the returned generator (or leaving a loop over it early) stops
-    the thread and closes ``items`` there.
+    Made by :func:`read_ahead`. The thread starts at once, so a caller can
+    begin decoding a video and go on building what will process its frames.
+    An exception of the items (a corrupt frame, a warning turned into an
+    error) is raised by ``next``, at the item where it happened. :meth:`close`
+    (or leaving a ``with`` block) stops the thread and closes the items'
+    iterator there (a video is released); a generator that was never read
+    to its end should be closed.
     """
-    depth = integer(depth, "depth", minimum=1)
-    slots: queue.Queue = queue.Queue(depth)
-    stop = threading.Event()
 
-    def produce() -> None:
-        source = iter(items)
+    def __init__(self, items: Iterable, depth: int) -> None:
+        depth = integer(depth, "depth", minimum=1)
+        self._slots: queue.Queue = queue.Queue(depth)
+        self._stop = threading.Event()
+        self._done = False
+        self._worker = threading.Thread(target=self._produce, args=(iter(items),), name="optitact-read-ahead",
+                                        daemon=True)
+        self._worker.start()
+
+    def _produce(self, source: Iterator) -> None:
+        slots, stop = self._slots, self._stop
         try:
             for item in source:
                 while not stop.is_set():
@@ -281,23 +292,56 @@ def read_ahead(items: Iterable, depth: int) -> Iterator:
             if close is not None:
                 close()
 
-    worker = threading.Thread(target=produce, name="optitact-read-ahead", daemon=True)
-    worker.start()
-    try:
-        while True:
-            ok, item = slots.get()
-            if not ok:
-                raise item
-            if item is _END:
-                return
-            yield item
-    finally:
-        stop.set()
-        while worker.is_alive():  # unblock a producer waiting for a free slot
+    def __iter__(self) -> ReadAhead:
+        return self
+
+    def __next__(self):
+        if self._done:
+            raise StopIteration
+        ok, item = self._slots.get()
+        if not ok:
+            self.close()
+            raise item
+        if item is _END:
+            self.close()
+            raise StopIteration
+        return item
+
+    def close(self) -> None:
+        """Stop the thread (the items' iterator is closed there); the remaining items are dropped."""
+        self._done = True
+        self._stop.set()
+        while self._worker.is_alive():  # unblock a producer waiting for a free slot
             try:
-                slots.get_nowait()
+                self._slots.get_nowait()
             except queue.Empty:
-                worker.join(0.01)
+                self._worker.join(0.01)
+
+    def __enter__(self) -> ReadAhead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_ahead_depth(shape: tuple[int, int], batch: int) -> int:
+    """Frames of ``shape`` to decode ahead of batches of ``batch``: four batches, within :data:`READ_AHEAD_BYTES`."""
+    h, w = shape
+    return max(2, min(4 * batch, READ_AHEAD_BYTES // (2 * h * w)))  # frames of up to 16 bits: 2 bytes a pixel
+
+
+def read_ahead(items: Iterable, depth: int) -> ReadAhead:
+    """``items`` in order, produced up to ``depth`` ahead by a background thread (:class:`ReadAhead`).
+
+    Frames decode (OpenCV releases the GIL) while the caller works on the
+    ones before them.
+
+    Raises
+    ------
+    InputError
+        ``depth`` below 1.
+    """
+    return ReadAhead(items, depth)
 
 
 def check_codec(f: Path, cap) -> None:
@@ -331,6 +375,10 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
                          str(f))
         announced = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         check_codec(f, cap)
+        if int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) == _GREY8:
+            # decoded as 8-bit grey: read it as it is, not converted to BGR and back (the same
+            # grey levels; a quarter less decoding time)
+            cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
         while True:
             ok, img = cap.read()
             if not ok:

@@ -252,6 +252,56 @@ def test_read_ahead_closed_early_stops_its_thread_and_closes_the_source():
         next(read_ahead(iter([1]), depth=0))
 
 
+def test_read_ahead_starts_at_once_and_closing_it_unread_closes_the_source():
+    import threading
+
+    from optitact.frames import read_ahead
+
+    started, closed = threading.Event(), threading.Event()
+
+    def items():
+        try:
+            started.set()
+            yield from range(100)
+        finally:
+            closed.set()
+
+    ahead = read_ahead(items(), depth=2)
+    assert started.wait(5.0)  # decoding began before anything was asked of it
+    ahead.close()  # never read: the thread stops and the source is closed all the same
+    assert closed.wait(5.0)
+    assert not any(t.name == "optitact-read-ahead" and t.is_alive() for t in threading.enumerate())
+    assert list(ahead) == []  # a closed read-ahead gives nothing more
+    with read_ahead(iter(range(5)), depth=2) as ahead:
+        assert list(ahead) == [0, 1, 2, 3, 4]
+
+
+def test_read_ahead_depth_is_four_batches_within_the_byte_bound():
+    from optitact.frames import READ_AHEAD_BYTES, read_ahead_depth
+
+    assert read_ahead_depth((480, 640), 32) == min(128, READ_AHEAD_BYTES // (2 * 480 * 640))
+    assert read_ahead_depth((60, 80), 3) == 12
+    assert read_ahead_depth((20000, 20000), 32) == 2  # at least two frames, however large
+
+
+def test_a_grey_video_is_read_as_grey_with_the_levels_of_a_colour_read(tmp_path):
+    """An 8-bit grey FFV1 video is read without OpenCV's conversion to BGR: the same levels."""
+    path = _video(tmp_path / "g.avi", "FFV1", _frames())
+    cap = cv2.VideoCapture(str(path))
+    assert int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)).to_bytes(4, "little") == b"Y800"
+    truth = []
+    while True:  # the default read: BGR, then OpenCV's BGR-to-grey
+        ok, img = cap.read()
+        if not ok:
+            break
+        truth.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    cap.release()
+    got = _read_quietly(path)
+    assert len(got) == len(truth) == N_FRAMES
+    assert all(g.dtype == np.uint8 and g.shape == (H, W) and np.array_equal(g, t) for g, t in zip(got, truth))
+    assert all(np.array_equal(g, f) for g, f in zip(got, _frames()))  # and FFV1 is lossless
+
+
 def test_a_video_read_ahead_is_the_video(tmp_path):
     from optitact.frames import read_ahead
 

@@ -376,3 +376,38 @@ def test_process_writes_standard_errors_that_grow_with_the_noise(tmp_path):
         process_files([tmp_path / "rec.npy"], pipeline=cal.pipeline(), noise="model")
     with pytest.raises(TypeError, match="PixelNoise or 'model'"):
         process_files([tmp_path / "rec.npy"], calibration=cal, noise=0.01)
+
+
+def test_frames_started_by_the_caller_give_the_same_table_and_are_closed(tmp_path):
+    """process_files(frames=...): a read-ahead begun before the pipeline was built; the table is the same."""
+    import threading
+
+    from optitact.frames import expand_sources, iter_frames, read_ahead
+
+    np.save(tmp_path / "rec.npy", _frames(9, seed=7))
+    src = [tmp_path / "rec.npy"]
+    pipe = optitact.Pipeline(SENSOR, CAM)
+    process_files(src, pipeline=pipe, out=tmp_path / "a.csv", batch=4)
+    ahead = read_ahead(iter_frames(expand_sources(src)), depth=3)
+    done = process_files(src, pipeline=pipe, out=tmp_path / "b.csv", batch=4, frames=ahead)
+    assert done.n_frames == 9
+    assert (tmp_path / "b.csv").read_bytes() == (tmp_path / "a.csv").read_bytes()
+    assert not any(t.name == "optitact-read-ahead" and t.is_alive() for t in threading.enumerate())
+    ahead = read_ahead(iter_frames(expand_sources(src)), depth=3)
+    with pytest.raises(InputError, match="scheduler"):
+        process_files(src, pipeline=pipe, out=tmp_path / "c.csv", scheduler="tcp://nowhere:1", frames=ahead)
+    assert list(ahead) == []  # closed
+
+
+def test_process_files_restores_the_switch_interval(tmp_path):
+    """The shorter thread switch interval of a run that decodes ahead is undone, also when the run fails."""
+    np.save(tmp_path / "rec.npy", _frames(4))
+    before = sys.getswitchinterval()
+    process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=tmp_path / "a.csv")
+    assert sys.getswitchinterval() == before
+    bad = _frames(4)
+    bad[2, 0, 0] = np.nan
+    np.save(tmp_path / "bad.npy", bad)
+    with pytest.raises(InputError):
+        process_files([tmp_path / "bad.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=tmp_path / "b.csv")
+    assert sys.getswitchinterval() == before

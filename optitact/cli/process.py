@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from contextlib import closing, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -228,9 +229,7 @@ def run_process(args) -> int:
     """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
     import cv2
 
-    from optitact.batch import process_files
-    from optitact.frames import expand_sources, iter_frames
-    from optitact.tables import per_frame_path
+    from optitact.frames import expand_sources, iter_frames, read_ahead, read_ahead_depth
 
     # OpenCV's worker threads would busy-wait between frames for a colour conversion that takes
     # a tenth of a millisecond; video decoding keeps its own (FFmpeg's) threads
@@ -248,9 +247,33 @@ def run_process(args) -> int:
         raise InputError("no frames given: pass image files, a folder, .npy stacks or a video, or "
                          "--camera INDEX|URL for a live stream")
     files = expand_sources(args.frames)
-    first = next(iter_frames(files[:1]), None)
+    pairs = iter_frames(files)
+    first = next(pairs, None)
     if first is None:
         raise InputError("the frames hold no frame")
+    if args.scheduler is not None:  # the cluster reads the files
+        pairs.close()
+        frames = None
+    else:  # the next frames decode while the calibration and the pipeline are made
+        frames = read_ahead(_prepend(first, pairs), depth=read_ahead_depth(first[1].shape[:2], args.batch))
+    with closing(frames) if frames is not None else nullcontext():
+        return _process_files(args, files, first, frames)
+
+
+def _prepend(first, rest):
+    """``first``, then the items of the generator ``rest``; closing this closes ``rest``."""
+    try:
+        yield first
+        yield from rest
+    finally:
+        rest.close()
+
+
+def _process_files(args, files, first, frames) -> int:
+    """``optitact process`` on files: the pipeline (and calibration), then process_files on ``frames``."""
+    from optitact.batch import process_files
+    from optitact.tables import per_frame_path
+
     setup = None if args.setup is None else read_setup(args.setup)
     given = _given(args)
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
@@ -268,7 +291,7 @@ def run_process(args) -> int:
     print(f"optitact: processing {camera.width}x{camera.height} frames, {how}", file=sys.stderr)
     done = process_files(files, pipeline=pipe, calibration=cal, baseline=baseline, baseline_frames=n_base,
                          out=args.out, batch=args.batch, scheduler=args.scheduler, progress=True,
-                         noise=_noise(args, cal))
+                         noise=_noise(args, cal), frames=frames)
     if args.plot is not None:
         field = cal.apply(done.last_readings)
         field.save_plot(args.plot, done.last_frame, camera, title="estimated forces (last frame)")
