@@ -325,7 +325,7 @@ class ReadAhead:
 
 
 def read_ahead_depth(shape: tuple[int, int], batch: int) -> int:
-    """Frames of ``shape`` to decode ahead of batches of ``batch``: four batches, within :data:`READ_AHEAD_BYTES`."""
+    """Frames of ``shape`` to decode ahead of batches of ``batch``: 4 batches, within ``READ_AHEAD_BYTES``."""
     h, w = shape
     return max(2, min(4 * batch, READ_AHEAD_BYTES // (2 * h * w)))  # frames of up to 16 bits: 2 bytes a pixel
 

@@ -298,8 +298,9 @@ def test_a_grey_video_is_read_as_grey_with_the_levels_of_a_colour_read(tmp_path)
     cap.release()
     got = _read_quietly(path)
     assert len(got) == len(truth) == N_FRAMES
-    assert all(g.dtype == np.uint8 and g.shape == (H, W) and np.array_equal(g, t) for g, t in zip(got, truth))
-    assert all(np.array_equal(g, f) for g, f in zip(got, _frames()))  # and FFV1 is lossless
+    assert all(g.dtype == np.uint8 and g.shape == (H, W) for g in got)
+    assert all(np.array_equal(g, t) for g, t in zip(got, truth, strict=True))
+    assert all(np.array_equal(g, f) for g, f in zip(got, _frames(), strict=True))  # and FFV1 is lossless
 
 
 def test_a_video_read_ahead_is_the_video(tmp_path):
