@@ -400,8 +400,8 @@ class Pipeline:
         if len(frames) < 2:
             self._one_frame = True
             #: (rate, height) of its isolated bright pixels (see :func:`~optitact.baseline.impulse_floor`).
-            self._impulses = impulses(frames)
-            noise = noise_from_one_frame(frames[0], stacklevel=5)
+            self._impulses = impulses(stack)  # integer frames: exact integer arithmetic, the same values
+            noise = noise_from_one_frame(stack[0], stacklevel=5)
             if noise is not None:
                 noise.flags.writeable = False
             return b, noise

@@ -98,6 +98,30 @@ def test_impulses_are_found_and_spots_are_not():
     assert 10.0 < height[10, 10] < 14.0 and 7.0 < height[40, 70] < 11.0
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int8, np.int16])
+def test_integer_frames_give_the_float_paths_values_to_the_bit(dtype):
+    """impulses and noise_from_one_frame on integer frames (exact integer sums, histogram medians,
+    a looked-up noise per level) give what the float64 arithmetic gives on the same frames."""
+    from optitact.steps import impulses
+
+    info = np.iinfo(dtype)
+    rng = np.random.default_rng(int(info.bits))
+    for trial in range(24):
+        h, w = rng.integers(30, 70, 2)
+        scale = [1.0, 3.0, 20.0, info.max / 4][trial % 4]
+        ramp = np.linspace(0.0, rng.uniform(0, info.max / 3), w)
+        f = np.clip(rng.normal(rng.uniform(0, info.max / 2), scale, (h, w)) + ramp, info.min, info.max)
+        f = f.astype(dtype)
+        f[rng.integers(1, h - 1), rng.integers(1, w - 1)] = info.max  # an impulse
+        if trial % 6 == 5:
+            f[:] = f[0, 0]  # flat: every residual 0
+        stack = np.stack([f, np.roll(f, 3, axis=1)])
+        for got, want in zip(impulses(stack), impulses(stack.astype(np.float64)), strict=True):
+            assert np.array_equal(got, want)
+        got, want = noise_from_one_frame(f), noise_from_one_frame(f.astype(np.float64))
+        assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
 def test_one_frame_noise_estimate_matches_the_ccd_model():
     """noise_from_one_frame against the CCD's own noise of frame - baseline (photon + read + rounding)."""
     ccd = CCD()
