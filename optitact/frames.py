@@ -379,11 +379,16 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
             # decoded as 8-bit grey: read it as it is, not converted to BGR and back (the same
             # grey levels; a quarter less decoding time)
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        colour, name = None, f.name
         while True:
-            ok, img = cap.read()
+            ok, img = cap.read(colour)
             if not ok:
                 break
-            yield f"{f.name}#{k}", _grey(img, f"{f}#{k}")
+            grey = _grey(img, f"{f}#{k}")
+            # a colour frame is converted to a new grey array: the next frame is decoded into the
+            # same colour one (no allocation, which takes the GIL in the middle of decoding)
+            colour = img if img.ndim == 3 and img.shape[2] in (3, 4) else None
+            yield f"{name}#{k}", grey
             k += 1
     finally:
         cap.release()
