@@ -259,8 +259,8 @@ class ReadAhead:
     An exception of the items (a corrupt frame, a warning turned into an
     error) is raised by ``next``, at the item where it happened. :meth:`close`
     (or leaving a ``with`` block) stops the thread and closes the items'
-    iterator there (a video is released); a generator that was never read
-    to its end should be closed.
+    iterator there (a video is released); one dropped unclosed does the
+    same when it is collected.
     """
 
     def __init__(self, items: Iterable, depth: int) -> None:
@@ -268,29 +268,10 @@ class ReadAhead:
         self._slots: queue.Queue = queue.Queue(depth)
         self._stop = threading.Event()
         self._done = False
-        self._worker = threading.Thread(target=self._produce, args=(iter(items),), name="optitact-read-ahead",
-                                        daemon=True)
+        # the thread holds no reference to this object: one dropped unclosed is collected, and stops it
+        self._worker = threading.Thread(target=_produce, args=(iter(items), self._slots, self._stop),
+                                        name="optitact-read-ahead", daemon=True)
         self._worker.start()
-
-    def _produce(self, source: Iterator) -> None:
-        slots, stop = self._slots, self._stop
-        try:
-            for item in source:
-                while not stop.is_set():
-                    try:
-                        slots.put((True, item), timeout=0.05)
-                        break
-                    except queue.Full:
-                        pass
-                if stop.is_set():
-                    return
-            slots.put((True, _END))
-        except BaseException as exc:  # handed to the consumer, raised there
-            slots.put((False, exc))
-        finally:
-            close = getattr(source, "close", None)
-            if close is not None:
-                close()
 
     def __iter__(self) -> ReadAhead:
         return self
@@ -322,6 +303,40 @@ class ReadAhead:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def __del__(self) -> None:
+        stop = getattr(self, "_stop", None)  # None: the constructor failed
+        if stop is not None:
+            stop.set()  # the thread closes the items' iterator and ends within PUT_WAIT
+
+
+#: Seconds a :class:`ReadAhead` thread waits for a free slot before it looks whether it was stopped.
+PUT_WAIT = 0.05
+
+
+def _produce(source: Iterator, slots: queue.Queue, stop: threading.Event) -> None:
+    """A :class:`ReadAhead`'s thread: the items into ``slots``, then their end or exception, until ``stop``."""
+
+    def offer(entry) -> bool:
+        while not stop.is_set():
+            try:
+                slots.put(entry, timeout=PUT_WAIT)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    try:
+        for item in source:
+            if not offer((True, item)):
+                return
+        offer((True, _END))
+    except BaseException as exc:  # handed to the consumer, raised there
+        offer((False, exc))
+    finally:
+        close = getattr(source, "close", None)
+        if close is not None:
+            close()
 
 
 def read_ahead_depth(shape: tuple[int, int], batch: int) -> int:

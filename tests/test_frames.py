@@ -276,6 +276,27 @@ def test_read_ahead_starts_at_once_and_closing_it_unread_closes_the_source():
         assert list(ahead) == [0, 1, 2, 3, 4]
 
 
+def test_a_read_ahead_dropped_unclosed_stops_its_thread():
+    import gc
+    import threading
+
+    from optitact.frames import read_ahead
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            yield from iter(int, 1)  # zeros, for ever
+        finally:
+            closed.set()
+
+    ahead = read_ahead(endless(), depth=2)
+    assert next(ahead) == 0
+    del ahead
+    gc.collect()
+    assert closed.wait(5.0)  # the thread saw it was dropped, closed the source and ended
+
+
 def test_read_ahead_depth_is_four_batches_within_the_byte_bound():
     from optitact.frames import READ_AHEAD_BYTES, read_ahead_depth
 
