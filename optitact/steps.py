@@ -465,7 +465,7 @@ def _integer_impulses(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r2 = np.minimum(rh2, c2 - g[:-2, 1:-1] - g[2:, 1:-1])
     med2 = _integer_median(rh2)  # 2 x the median residual: an integer or a half
     q = 1 if med2 == int(med2) else 2  # so that q x 2 x the deviations are integers
-    dev = np.abs(rh2 * work(q) - work(q * med2)) if q == 1 else np.abs(rh2.astype(np.int32) * 2 - int(2 * med2))
+    dev = np.abs(rh2 - work(med2)) if q == 1 else np.abs(rh2.astype(np.int32) * 2 - int(2 * med2))
     spread = max(1.4826 * (_integer_median(dev) / (2.0 * q)), 0.5)
     hit = r2 > 2.0 * (IMPULSE_SIGMAS * spread)
     return hit, r2[hit] / 2.0
