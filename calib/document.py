@@ -151,6 +151,11 @@ def from_document(cls, d):
                              f"{type(d[key]).__name__}")
     residuals = {key: numbers(value, f"calibration residuals_n[{key!r}]")
                  for key, value in d.get("residuals_n", {}).items()}
+    if "n" in residuals:  # sample counts: integers, as a fit makes them (and writes them back)
+        count = residuals["n"]
+        if np.any(count < 0) or np.any(count != np.round(count)):
+            raise InputError("calibration residuals_n['n'] must hold sample counts (integers >= 0)")
+        residuals["n"] = count.astype(np.int64)
     try:
         intensity = IntensityScale.from_dict(d.get("intensity", {}))
     except (TypeError, ValueError) as exc:

@@ -178,6 +178,22 @@ def test_json_round_trip(cal, analytic, tmp_path):
     assert back.pipeline().threshold == 1.5
 
 
+def test_sample_counts_stay_integers_through_a_file(cal, tmp_path):
+    """residuals_n['n'] is read back as integers and written as integers (a loaded and re-saved
+    calibration, such as the shipped one after calibrate fit --validation, used to write 128.0)."""
+    path = cal.save(tmp_path / "c.json")
+    back = Calibration.load(path, sensor=SENSOR, camera=SMALL)
+    assert back.residuals["n"].dtype.kind == "i"
+    np.testing.assert_array_equal(back.residuals["n"], cal.residuals["n"])
+    again = json.loads(back.save(tmp_path / "again.json").read_text())
+    assert all(type(k) is int for k in again["residuals_n"]["n"])
+    doc = json.loads(path.read_text())
+    doc["residuals_n"]["n"][0] = 12.5
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="sample counts"):
+        Calibration.load(path, sensor=SENSOR, camera=SMALL)
+
+
 def test_fingerprint_mismatch(cal, tmp_path):
     path = cal.save(tmp_path / "c.json")
     with pytest.raises(CalibrationMismatchError, match="camera"):
