@@ -239,7 +239,7 @@ def _read(pipe: Pipeline, cal, names: list, stack: np.ndarray, noise=None) -> tu
         from .uncertainty import reading_errors
 
         se = cal.stderr(r, None if noise == "model" else reading_errors(pipe, stack, noise, r), forces=forces)
-    return names, r, forces, clamped, stack[-1].copy(), se  # a copy: the stack's buffer is reused
+    return names, r, forces, clamped, stack[-1], se
 
 
 def _read_file(pipe: Pipeline, cal, path, batch: int, noise=None) -> list:
@@ -409,7 +409,8 @@ def _process_files(sources, pipeline, calibration, baseline, baseline_frames, ou
         if last is None:
             raise InputError("the frames hold no frame")
     table = sink.result() if out is None else {"readings": None, "forces": None, "clamped": None}
-    return ProcessedFrames(n_frames=len(names), sources=names, last_frame=last[4], last_readings=last[1][-1],
+    last_frame = last[4].copy()  # out of the batch buffer (reused by every batch, and a batch long)
+    return ProcessedFrames(n_frames=len(names), sources=names, last_frame=last_frame, last_readings=last[1][-1],
                            seconds=time.perf_counter() - t0, **table)
 
 

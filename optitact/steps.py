@@ -289,6 +289,11 @@ def _median(a: np.ndarray) -> np.float64:
     return (p[k - 1] + p[k]) / 2.0
 
 
+def _small_integers(a: np.ndarray) -> bool:
+    """Integers of at most 16 bits: the one-frame statistics below take exact integer paths for them."""
+    return a.dtype.kind in "ui" and a.dtype.itemsize <= 2
+
+
 def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
     r"""Per-pixel noise (grey levels, rms) of ``frame - baseline`` for a one-frame no-load baseline.
 
@@ -339,7 +344,7 @@ def noise_from_one_frame(frame, *, stacklevel: int = 2) -> np.ndarray | None:
     True
     """
     x = np.asarray(frame)
-    integer = x.dtype.kind in "ui" and x.dtype.itemsize <= 2
+    integer = _small_integers(x)
     if not integer:
         x = x.astype(np.float64, copy=False)
     h, w = x.shape
@@ -428,7 +433,7 @@ def impulses(frames) -> tuple[np.ndarray, np.ndarray]:
     (1.0, 10.0, 1)
     """
     x = np.asarray(frames)
-    if x.dtype.kind not in "ui" or x.dtype.itemsize > 2:
+    if not _small_integers(x):
         x = x.astype(np.float64, copy=False)
     rate, out = np.zeros(x.shape[1:]), np.zeros(x.shape[1:])
     if x.shape[1] < 3 or x.shape[2] < 3:
