@@ -538,7 +538,7 @@ def _fill(path: Path, *, zarr, attrs, check, frames, sensor, camera, ccd, design
             group["frames"][i] = out["frame"]
         group["done"][i] = True
 
-    with tqdm(total=frames, initial=frames - len(todo), unit="frame", desc="calibration set",
+    with tqdm(total=frames, initial=frames - len(todo), unit="frame", desc=path.name,
               file=sys.stderr, disable=not progress) as bar:
         if scheduler is None:
             for i in todo:

@@ -425,7 +425,7 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
 
     out = bench_accuracy(calibration_set=small_set.path, families=("independent", "single"), test_frames=3,
                          test_spp=8, size=(SMALL.width, SMALL.height), validation_frames=4, seed=5,
-                         plot=tmp_path / "acc.png")
+                         plot=tmp_path / "acc.png", single_frames=6)
     assert cv2.imread(str(tmp_path / "acc.png")).shape[:2] == (480, 2000)  # RMSE per axis, and coverage
     assert set(out["families"]) == {"independent", "single"}
     assert out["frame_noise"]["dn_per_electron"] > out["frame_noise"]["ccd_dn_per_electron"]
@@ -441,6 +441,20 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
             assert set(scores["coverage_90_fit_residuals"]) == {"fx", "fy", "fz"}
             assert all(0.0 <= sd < 0.5 for sd in scores["coverage_90_sd"].values())
     assert out["worst_family"]["coupled"]["fz"][0] in ("independent", "single")
+    sizes = {f: v["set"]["frames"] for f, v in out["families"].items()}
+    assert sizes == {"independent": 3, "single": 6}
+    # pooled: every family's loaded samples together, its coverage their samples-weighted mean
+    fams = [CalibrationSet(f["set"]["path"]) for f in out["families"].values()]
+    loaded = [int(np.sum(f.forces()[..., 2] > 0)) for f in fams]
+    assert loaded[1] == 6
+    for model in ("ohka", "coupled"):
+        pooled = out["coverage_90_pooled"][model]
+        assert pooled["samples"] == sum(loaded) and pooled["frames"] == 9
+        for ax in ("fx", "fy", "fz"):
+            mean = sum(n * out["families"][f]["models"][model]["coverage_90"][ax]
+                       for n, f in zip(loaded, out["families"], strict=True)) / sum(loaded)
+            assert pooled["coverage_90"][ax] == pytest.approx(mean, abs=2e-4)  # the families' are rounded
+            assert 0.0 <= pooled["coverage_90_sd"][ax] < 0.5
 
 
 @pytest.mark.render

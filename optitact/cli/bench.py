@@ -92,6 +92,9 @@ def add_parsers(sub) -> None:
                       help="calibration frames (default 100)")
     bacc.add_argument("--test-frames", type=positive_int, default=30,
                       help="held-out frames (default 30)")
+    bacc.add_argument("--single-frames", type=positive_int, default=None, metavar="N",
+                      help="frames of the single family's held-out set, one element loaded in each "
+                           "(default 30 x --test-frames: about as many samples as a family loading all)")
     bacc.add_argument("--spp", type=positive_int, default=64,
                       help="samples per pixel of the calibration set (default 64)")
     bacc.add_argument("--test-spp", type=positive_int, default=None,
@@ -215,7 +218,7 @@ def _accuracy(args) -> dict:
                           calibration_set=args.calibration_set, test_set=args.test_set, seed=args.seed,
                           variant=args.variant, plot=args.plot, render_mode=args.render_mode,
                           test_render_mode=args.test_render_mode, design_pattern=args.design_pattern,
-                          validation_frames=args.validation_frames)
+                          validation_frames=args.validation_frames, single_frames=args.single_frames)
 
 
 def _stability(args) -> dict:
