@@ -425,7 +425,7 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
 
     out = bench_accuracy(calibration_set=small_set.path, families=("independent", "single"), test_frames=3,
                          test_spp=8, size=(SMALL.width, SMALL.height), validation_frames=4, seed=5,
-                         plot=tmp_path / "acc.png", single_frames=6)
+                         plot=tmp_path / "acc.png", single_frames=6, floor_frames=2)
     assert cv2.imread(str(tmp_path / "acc.png")).shape[:2] == (480, 2000)  # RMSE per axis, and coverage
     assert set(out["families"]) == {"independent", "single"}
     assert out["frame_noise"]["dn_per_electron"] > out["frame_noise"]["ccd_dn_per_electron"]
@@ -455,6 +455,17 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
                        for n, f in zip(loaded, out["families"], strict=True)) / sum(loaded)
             assert pooled["coverage_90"][ax] == pytest.approx(mean, abs=2e-4)  # the families' are rounded
             assert 0.0 <= pooled["coverage_90_sd"][ax] < 0.5
+    # the floor: the same loads rendered again with other seeds (path-traced: Monte Carlo noise, never 0)
+    assert out["families"]["independent"]["floor"]["frames"] == 2
+    assert out["families"]["single"]["floor"]["frames"] == 6  # ten times as many, at most the set's frames
+    for fam in out["families"].values():
+        for model in ("ohka", "coupled"):
+            scores = fam["models"][model]
+            for ax in ("fx", "fy", "fz"):
+                f, r = scores[f"{ax}_floor_pct_fs"], scores[f"{ax}_rmse_pct_fs"]
+                assert f > 0.0
+                beyond = max(r * r - f * f, 0.0) ** 0.5
+                assert scores[f"{ax}_beyond_floor_pct_fs"] == pytest.approx(beyond, abs=2e-3)
 
 
 @pytest.mark.render
@@ -477,3 +488,38 @@ def test_calibrate_fit_with_a_validation_set(small_set, tmp_path, capsys):
     assert main(["calibrate", "fit", str(small_set.path), "--out", str(out), "--validation",
                  str(small_set.path)]) == 2
     assert "did not see" in capsys.readouterr().err
+
+
+@pytest.mark.render
+def test_render_floor_is_the_spread_between_renders_of_the_same_loads(small_set, tmp_path):
+    """render_floor against its definition: the same loads made again with other seeds, read by the
+    calibration; rms(F2 - F1) / sqrt(2) over the loaded samples. A second call reads the re-renders
+    from the cache instead of rendering them."""
+    from optitact.calib.sets import FrameMaker
+    from optitact.studies import bench_accuracy as ba
+
+    held = generate(tmp_path / "h.zarr", frames=3, camera=SMALL, spp=8, seed=21, progress=False,
+                    render_mode="pixels")
+    cal = fit(small_set, model="coupled")
+    fs = np.array([0.5, 0.5, 1.0])
+    out = ba.render_floor(held, {"c": cal}, 3, fs)["c"]
+    truth = held.forces()
+    seeds = np.random.SeedSequence([21, 78]).generate_state(3)
+    maker = ba._maker(held)
+    assert isinstance(maker, FrameMaker)
+    again = [maker(truth[t], int(seeds[t])) for t in range(3)]
+    second = Readings(*(np.stack([o[k] for o in again]) for k in ("G", "u", "contact", "saturated")))
+    loaded = truth[..., 2] > 0
+    diff = (cal.forces(second)[0] - cal.forces(held.readings())[0])[loaded]
+    expected = 100 * np.sqrt(np.mean(diff**2, axis=0) / 2) / fs
+    got = [out[f"{ax}_floor_pct_fs"] for ax in ("fx", "fy", "fz")]
+    np.testing.assert_allclose(got, expected, atol=6e-4)  # rounded to 3 decimals
+    assert out["samples"] == int(loaded.sum()) and out["frames"] == 3 and expected.min() > 0
+    made = []
+    real = ba._maker
+    try:
+        ba._maker = lambda *a, **k: made.append(1) or real(*a, **k)
+        assert ba.render_floor(held, {"c": cal}, 3, fs)["c"] == out  # from the cache: nothing rendered
+    finally:
+        ba._maker = real
+    assert made == []

@@ -117,6 +117,10 @@ def add_parsers(sub) -> None:
                       help="frames of the validation set (rendered like the held-out sets, blend pattern, "
                            "seed + 900) on which each model's own error is measured for the error bars; 0: "
                            "none (default 60: ten frames of each family)")
+    bacc.add_argument("--floor-frames", type=int, default=4, metavar="N",
+                      help="frames of each held-out set rendered again with other seeds, for each model's "
+                           "error floor there: the RMSE a perfect calibration would show on those frames "
+                           "(the single family: 10 x N; 0: none; default 4)")
     bacc.add_argument("--test-set", type=Path, default=None, metavar="SET.zarr",
                       help="use this held-out set instead of generating one")
     bstab = bsub.add_parser(
@@ -218,7 +222,8 @@ def _accuracy(args) -> dict:
                           calibration_set=args.calibration_set, test_set=args.test_set, seed=args.seed,
                           variant=args.variant, plot=args.plot, render_mode=args.render_mode,
                           test_render_mode=args.test_render_mode, design_pattern=args.design_pattern,
-                          validation_frames=args.validation_frames, single_frames=args.single_frames)
+                          validation_frames=args.validation_frames, single_frames=args.single_frames,
+                          floor_frames=args.floor_frames)
 
 
 def _stability(args) -> dict:

@@ -31,7 +31,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                    variant: str | None = None, plot=None, contact_min_n: float = 0.01,
                    render_mode: str = "two_stage", test_render_mode: str = "pixels",
                    families=("independent",), design_pattern: str = "independent",
-                   validation_frames: int = 60, single_frames: int | None = None) -> dict:
+                   validation_frames: int = 60, single_frames: int | None = None,
+                   floor_frames: int = 4) -> dict:
     """Force errors of both calibration models on a held-out synthetic set.
 
     Parameters
@@ -83,6 +84,10 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     single_frames : int, optional
         Frames of the ``single`` family's held-out set, each loading one
         element (default :data:`SINGLE_FRAMES_FACTOR` times ``test_frames``).
+    floor_frames : int
+        Frames of each held-out set made again with other seeds to measure
+        each model's error floor there (:func:`render_floor`; the ``single``
+        family's: ten times as many, as they load one element each; 0: none).
 
     Returns
     -------
@@ -103,7 +108,11 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         (the same with the fit residuals as the model error), over every loaded
         element sample (``Fz > 0``) of the
         first family's held-out set; ``families``: the same per family;
-        ``coverage_90_pooled`` (with several families and frames): per model,
+        with ``floor_frames``, per family and model also
+        ``fx/fy/fz_floor_pct_fs`` (the RMSE a perfect calibration would show
+        on those renders) and ``fx/fy/fz_beyond_floor_pct_fs`` (``sqrt(RMSE^2 -
+        floor^2)``: the model's own error), and per family ``floor`` (how it
+        was measured); ``coverage_90_pooled`` (with several families and frames): per model,
         ``coverage_90`` and ``coverage_90_sd`` over every family's samples
         together, with their ``samples`` and ``frames``; and
         ``worst_family``: per model and axis, the family with the largest RMSE.
@@ -135,6 +144,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
     families = tuple(families)
     single_frames = (SINGLE_FRAMES_FACTOR * test_frames if single_frames is None
                      else integer(single_frames, "single_frames", minimum=1))
+    floor_frames = integer(floor_frames, "floor_frames", minimum=0)
     if not families or any(f not in FAMILIES for f in families):
         raise InputError(f"families must be some of {FAMILIES}, got {families!r}")
     if test_set is not None and len(families) > 1:
@@ -212,6 +222,15 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                                                                              seed=seed))
                         pooled.setdefault(model, []).append((est, f_truth, se, loaded))
             out["families"][fam]["models"][model] = scores
+        if floor_frames:
+            floors = render_floor(fset, cals, floor_frames * (10 if fam == "single" else 1), fs)
+            for model, fl in floors.items():
+                scores = out["families"][fam]["models"][model]
+                for ax in ("fx", "fy", "fz"):
+                    f, r = fl[f"{ax}_floor_pct_fs"], scores[f"{ax}_rmse_pct_fs"]
+                    scores[f"{ax}_floor_pct_fs"] = f
+                    scores[f"{ax}_beyond_floor_pct_fs"] = round(float(np.sqrt(max(r * r - f * f, 0.0))), 3)
+            out["families"][fam]["floor"] = {k: fl[k] for k in ("frames", "samples", "from")}
     out["models"] = out["families"][families[0]]["models"]
     if len(families) > 1 and pooled:  # every family's frames together: the issue's "over the held-out families"
         out["coverage_90_pooled"] = {}
@@ -261,7 +280,6 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
     info : dict
         How it was obtained, for the bench's JSON.
     """
-    from optitact.calib.sets import FrameMaker
     from optitact.uncertainty import PixelNoise
 
     mode = fset.attrs.get("render_mode", "full")
@@ -269,11 +287,7 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
         noise = PixelNoise.from_ccd(fset.ccd)
         return noise, {"from": "the CCD model (two-stage frames: no Monte Carlo noise)",
                        "dn_per_electron": noise.dn_per_electron}
-    maker = FrameMaker(sensor=fset.sensor, camera=fset.camera, ccd=fset.ccd,
-                       pipeline_options=fset.attrs.get("pipeline", {}), baseline=fset.array("baseline"),
-                       background=np.asarray(fset.array("baseline_radiance"), np.float64).mean(axis=0),
-                       render_mode=mode, spp=int(fset.attrs["spp"]), variant=None, table=None,
-                       keep_frames=True)
+    maker = _maker(fset, keep_frames=True)
     forces = fset.forces()[frame]
     seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 77, frame]).generate_state(repeats)
     pressed = np.stack([maker(forces, int(s))["frame"] for s in seeds])
@@ -283,6 +297,73 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
                            f"{repeats} renders of its frame {frame} with other seeds",
                    "dn_per_electron": round(noise.dn_per_electron, 6), "read_sigma": round(noise.read_sigma, 4),
                    "ccd_dn_per_electron": round(ccd.dn_per_electron, 6)}
+
+
+def _maker(fset, *, keep_frames: bool = False):
+    """A :class:`~optitact.calib.sets.FrameMaker` that makes frames as ``fset`` made its own."""
+    from optitact.calib.sets import FrameMaker
+
+    return FrameMaker(sensor=fset.sensor, camera=fset.camera, ccd=fset.ccd,
+                      pipeline_options=fset.attrs.get("pipeline", {}), baseline=fset.array("baseline"),
+                      background=np.asarray(fset.array("baseline_radiance"), np.float64).mean(axis=0),
+                      render_mode=fset.attrs.get("render_mode", "full"), spp=int(fset.attrs["spp"]),
+                      variant=None, table=None, keep_frames=keep_frames)
+
+
+def render_floor(fset, cals: dict, frames: int, fs) -> dict:
+    """Each model's error floor on a held-out set: its forces' spread between renders of the same loads.
+
+    The first ``frames`` frames of ``fset`` are made again as the set made
+    them (same loads and renderer, other render and CCD seeds) and read by
+    every calibration in ``cals``. Two renders of one load differ by the
+    noise of both, so ``rms(F2 - F1) / sqrt(2)`` over the loaded samples is
+    the RMSE a perfect calibration would show on one render: the part of a
+    held-out RMSE that no calibration can remove (the frames' Monte Carlo
+    noise and the camera's). What a model shows above it,
+    ``sqrt(RMSE^2 - floor^2)``, is its own. The re-renders' readings are kept
+    in the user cache folder (``bench-floor``), keyed by the set and its loads.
+
+    Returns
+    -------
+    dict
+        Per model ``{"fx_floor_pct_fs", "fy_floor_pct_fs", "fz_floor_pct_fs"}``
+        (% of ``fs``), with ``frames`` and ``samples`` (loaded samples).
+    """
+    from optitact.io import json_fingerprint
+    from optitact.readings import Readings
+
+    if fset.attrs.get("render_mode", "full") == "two_stage":
+        seeds_note = "two-stage frames: no Monte Carlo noise, the camera's alone"
+    else:
+        seeds_note = "path-traced frames: their Monte Carlo noise and the camera's"
+    from optitact._cache import cached_arrays
+
+    n = min(int(frames), int(fset.done.sum()))
+    truth = fset.forces()[:n]
+
+    def render() -> dict:  # seconds a frame where every element is loaded: kept in the cache folder
+        maker = _maker(fset)
+        seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 78]).generate_state(n)
+        again = [maker(truth[t], int(seeds[t])) for t in range(n)]
+        return {k: np.stack([o[k] for o in again]) for k in ("G", "u", "contact", "saturated")}
+
+    def check(a: dict) -> None:
+        if a["G"].shape != truth.shape[:2] or a["u"].shape != truth.shape[:2] + (2,):
+            raise ValueError("not this set's re-renders")
+
+    key = {"set": dict(fset.attrs), "frames": n, "forces": json_fingerprint(truth.tolist(), 16)}
+    a = cached_arrays("bench-floor", key, render, check)
+    second = Readings(a["G"], a["u"], a["contact"], a["saturated"])
+    first = fset.readings()[:n]
+    loaded = truth[..., 2] > 0
+    out = {}
+    for model, cal in cals.items():
+        diff = (cal.forces(second)[0] - cal.forces(first)[0])[loaded]
+        floor = np.sqrt(np.mean(diff**2, axis=0) / 2.0)
+        out[model] = {f"{ax}_floor_pct_fs": round(float(100 * floor[i] / fs[i]), 3)
+                      for i, ax in enumerate(("fx", "fy", "fz"))}
+        out[model] |= {"frames": n, "samples": int(loaded.sum()), "from": seeds_note}
+    return out
 
 
 def _scores(est, truth, clamped, readings, fs, ring, contact_min_n) -> dict:
@@ -342,6 +423,10 @@ def _plot_families(out: dict, path):
         for i, model in enumerate(models):
             vals = [out["families"][f]["models"][model][f"{axis}_rmse_pct_fs"] for f in fams]
             ax.bar(x + (i - (len(models) - 1) / 2) * width, vals, width, label=model)
+        floors = [out["families"][f]["models"][last].get(f"{axis}_floor_pct_fs", np.nan) for f in fams]
+        if not np.all(np.isnan(floors)):  # what no calibration can remove from these renders
+            ax.scatter(x, floors, marker="_", s=900, linewidths=2, color="k", zorder=3,
+                       label=f"{last}: floor (re-renders)")
         ax.axhline(TARGET_PCT_FS[axis], color="k", ls=":", lw=1, label=f"target {TARGET_PCT_FS[axis]:g} % FS")
         ax.set_xticks(x)
         ax.set_xticklabels(fams, rotation=30, ha="right")
