@@ -491,15 +491,17 @@ def test_calibrate_fit_with_a_validation_set(small_set, tmp_path, capsys):
 
 
 @pytest.mark.render
-def test_render_floor_is_the_spread_between_renders_of_the_same_loads(small_set, tmp_path):
+@pytest.mark.parametrize("mode", ["pixels", "two_stage"])
+def test_render_floor_is_the_spread_between_renders_of_the_same_loads(small_set, tmp_path, mode):
     """render_floor against its definition: the same loads made again with other seeds, read by the
-    calibration; rms(F2 - F1) / sqrt(2) over the loaded samples. A second call reads the re-renders
-    from the cache instead of rendering them."""
+    calibration; rms(F2 - F1) / sqrt(2) over the loaded samples (two-stage frames: the camera's noise
+    alone, with the set's own emission table). A second call reads the re-renders from the cache
+    instead of rendering them."""
     from optitact.calib.sets import FrameMaker
     from optitact.studies import bench_accuracy as ba
 
     held = generate(tmp_path / "h.zarr", frames=3, camera=SMALL, spp=8, seed=21, progress=False,
-                    render_mode="pixels")
+                    render_mode=mode)
     cal = fit(small_set, model="coupled")
     fs = np.array([0.5, 0.5, 1.0])
     out = ba.render_floor(held, {"c": cal}, 3, fs)["c"]
@@ -515,6 +517,7 @@ def test_render_floor_is_the_spread_between_renders_of_the_same_loads(small_set,
     got = [out[f"{ax}_floor_pct_fs"] for ax in ("fx", "fy", "fz")]
     np.testing.assert_allclose(got, expected, atol=6e-4)  # rounded to 3 decimals
     assert out["samples"] == int(loaded.sum()) and out["frames"] == 3 and expected.min() > 0
+    assert out["from"].startswith("path-traced" if mode == "pixels" else "two-stage")
     made = []
     real = ba._maker
     try:
