@@ -7,10 +7,12 @@ error bar needs the error measured where the calibration is used: on
 independent readings of known forces. :class:`ErrorModel` is that error,
 per axis, as a floor plus parts that grow with the load,
 
-    sigma_axis(Fz, Ft) = sqrt(floor_axis^2 + (relative_axis Fz)^2 + (shear_axis Ft)^2),
+    sigma_axis(Fz, Ft) = sqrt(floor_axis^2 + (relative_axis Fz)^2 + (shear_axis Ft)^2
+                              + (shear2_axis Ft^2)^2),
 
-``Ft`` the magnitude of the element's estimated shear (a part chosen by the
-likelihood of held-out validation frames: see :meth:`ErrorModel.fit`),
+``Ft`` the magnitude of the element's estimated shear (parts chosen by the
+likelihood of held-out validation frames: see :meth:`ErrorModel.fit`; the
+last, second order in the shear, for Fz only: :data:`QUADRATIC_SHEAR`),
 
 fitted by maximum likelihood to the residuals beside the noise the readings
 carried (their propagated standard errors), so that noise is not counted
@@ -27,17 +29,30 @@ import numpy as np
 
 from optitact.errors import InputError, ShapeError
 
-__all__ = ["MIN_SAMPLES", "ErrorModel", "validate"]
+__all__ = ["MIN_SAMPLES", "QUADRATIC_SHEAR", "ErrorModel", "validate"]
 
 #: Fewest loaded element samples an error model is fitted from.
 MIN_SAMPLES = 20
 
 _AXES = ("fx", "fy", "fz")
 
+#: Axes (Fx, Fy, Fz) whose error model has the part of second order in the shear, ``shear2 Ft^2``.
+#: The coupled curves give Fz a term linear in the centroid shift, so what they leave of G's
+#: dependence on the shear is of second order; Fx and Fy are the curves f(u) themselves, whose
+#: error grows with the shear they read. On the accuracy bench's 60 path-traced validation frames
+#: the Fz error beyond the noise was 0-5 mN below Ft = 0.25 N and 12-17 mN above it, where the
+#: linear part alone set 8 mN at 0.2 N: it widened the intervals of every sheared element to
+#: cover the few most sheared (the single, checkerboard and shear families' Fz intervals held
+#: 0.94, 0.93 and 0.95 of the true forces); with the quadratic part the held-out families'
+#: log-likelihood in Fz rose by 63 and those fractions fell to 0.93, 0.92 and 0.93. For Fx and Fy
+#: it would move their shear part to the few most sheared elements and leave the clustered family
+#: (little shear) at 0.875-0.88, so they have none.
+QUADRATIC_SHEAR = (False, False, True)
+
 
 @dataclass(frozen=True, eq=False)
 class ErrorModel:
-    """Per-axis model error ``sqrt(floor^2 + (relative Fz)^2 + (shear Ft)^2)`` (N), from independent data.
+    """Per-axis model error ``sqrt(floor^2 + (relative Fz)^2 + (shear Ft)^2 + (shear2 Ft^2)^2)`` (N).
 
     Parameters
     ----------
@@ -54,6 +69,9 @@ class ErrorModel:
         The part proportional to the magnitude of the element's estimated
         shear force ``Ft = hypot(Fx, Fy)``, per axis (N per N of Ft); default 0
         (a model fitted without it, or read from a file that has none).
+    shear2 : (3,) array_like
+        The part proportional to ``Ft^2``, per axis (N per N^2); default 0
+        (:data:`QUADRATIC_SHEAR`: fitted for Fz only).
 
     Examples
     --------
@@ -69,9 +87,10 @@ class ErrorModel:
     samples: int
     source: str = ""
     shear: np.ndarray = (0.0, 0.0, 0.0)
+    shear2: np.ndarray = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        for name in ("floor_n", "relative", "shear"):
+        for name in ("floor_n", "relative", "shear", "shear2"):
             a = np.array(getattr(self, name), dtype=np.float64)
             if a.shape != (3,):
                 raise ShapeError(f"{name} must have shape (3,) (Fx, Fy, Fz), got {a.shape}")
@@ -90,7 +109,8 @@ class ErrorModel:
         """The model error (..., 3) N of elements of estimated normal force ``fz`` and shear ``ft`` (N)."""
         fz = np.maximum(np.asarray(fz, dtype=np.float64), 0.0)[..., None]
         ft = np.abs(np.asarray(ft, dtype=np.float64))[..., None]
-        return np.sqrt(self.floor_n**2 + (self.relative * fz) ** 2 + (self.shear * ft) ** 2)
+        return np.sqrt(self.floor_n**2 + (self.relative * fz) ** 2 + (self.shear * ft) ** 2
+                       + (self.shear2 * ft**2) ** 2)
 
     def at(self, forces) -> np.ndarray:
         """The model error (..., 3) N of estimated element-local forces ``forces`` (..., 3) N."""
@@ -113,7 +133,7 @@ class ErrorModel:
             The estimated normal forces, N (what :meth:`sigma` is given in use).
         ft : (n,) array_like, optional
             The estimated shear magnitudes ``hypot(Fx, Fy)``, N; without them
-            the model has no shear part.
+            the model has no shear parts.
         source : str
 
         Returns
@@ -130,8 +150,9 @@ class ErrorModel:
         Notes
         -----
         Per axis, each residual is taken as ``N(0, s_i^2 + a^2 + b^2 fz_i^2 +
-        c^2 ft_i^2)`` with ``s_i`` its noise standard error, and ``(a, b, c)
-        >= 0`` minimise the negative log-likelihood (L-BFGS-B over the squares,
+        c^2 ft_i^2 + d^2 ft_i^4)`` with ``s_i`` its noise standard error (``d``
+        for the axes of :data:`QUADRATIC_SHEAR` only, else 0), and ``(a, b, c,
+        d) >= 0`` minimise the negative log-likelihood (L-BFGS-B over the squares,
         on residuals scaled to unit RMS). Starting from the residuals'
         variance split evenly, the fit is deterministic.
 
@@ -154,13 +175,14 @@ class ErrorModel:
             raise InputError(f"an error model needs at least {MIN_SAMPLES} loaded element samples, got {n}")
         if not all(np.isfinite(x).all() for x in (res, se, f, t)):
             raise InputError("residuals, noise_se, fz and ft must be finite")
-        features = np.stack([np.ones(n), np.maximum(f, 0.0) ** 2, np.abs(t) ** 2], axis=1)  # 1, fz^2, ft^2
-        used = [0, 1] + ([2] if ft is not None else [])
-        parts = np.zeros((3, 3))  # axis x (floor, relative, shear)
+        # the parts' variances are linear in these: 1, fz^2, ft^2, ft^4
+        features = np.stack([np.ones(n), np.maximum(f, 0.0) ** 2, t**2, t**4], axis=1)
+        parts = np.zeros((3, 4))  # axis x (floor, relative, shear, shear2)
         for ax in range(3):
             scale = float(np.sqrt(np.mean(res[:, ax] ** 2)))
             if scale == 0.0:
                 continue
+            used = [0, 1] + ([] if ft is None else [2, 3] if QUADRATIC_SHEAR[ax] else [2])
             e2, s2, x2 = (res[:, ax] / scale) ** 2, (se[:, ax] / scale) ** 2, features[:, used]
             mean = x2.mean(axis=0)
             mean[mean == 0.0] = 1.0
@@ -173,13 +195,14 @@ class ErrorModel:
             start = 1.0 / len(used) / mean  # each part an equal share of the residuals' variance
             best = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=[(0.0, None)] * len(used))
             parts[ax, used] = np.sqrt(best.x) * scale
-        return cls(parts[:, 0], parts[:, 1], n, source, shear=parts[:, 2])
+        return cls(parts[:, 0], parts[:, 1], n, source, shear=parts[:, 2], shear2=parts[:, 3])
 
     def to_dict(self) -> dict:
-        """JSON-ready: ``floor_n``, ``relative`` and ``shear`` per axis, ``samples``, ``source``."""
+        """JSON-ready: ``floor_n``, ``relative``, ``shear`` and ``shear2`` per axis, ``samples``, ``source``."""
         return {"floor_n": dict(zip(_AXES, self.floor_n.tolist(), strict=True)),
                 "relative": dict(zip(_AXES, self.relative.tolist(), strict=True)),
                 "shear": dict(zip(_AXES, self.shear.tolist(), strict=True)),
+                "shear2": dict(zip(_AXES, self.shear2.tolist(), strict=True)),
                 "samples": self.samples, "source": self.source}
 
     @classmethod
@@ -189,13 +212,14 @@ class ErrorModel:
             raise InputError("calibration 'error_model' must be an object with floor_n, relative and samples")
         from .document import numbers
 
+        def part(name):  # files written before a part was added have none
+            return (0.0, 0.0, 0.0) if d.get(name) is None else \
+                numbers([d[name][a] for a in _AXES], f"calibration error_model[{name!r}]")
+
         try:
-            shear = d.get("shear")  # files written before the shear part have none
             return cls(numbers([d["floor_n"][a] for a in _AXES], "calibration error_model['floor_n']"),
                        numbers([d["relative"][a] for a in _AXES], "calibration error_model['relative']"),
-                       d["samples"], d.get("source", ""),
-                       shear=(0.0, 0.0, 0.0) if shear is None else
-                       numbers([shear[a] for a in _AXES], "calibration error_model['shear']"))
+                       d["samples"], d.get("source", ""), shear=part("shear"), shear2=part("shear2"))
         except (KeyError, TypeError) as exc:
             raise InputError(f"calibration 'error_model' is malformed: {exc!r}") from None
 

@@ -7,9 +7,11 @@ The pipeline reads an element as sums over its lit pixels (see
 
 .. math::
 
-    \sigma_p^2 = \sigma_{r,p}^2 + g\,\max(v_p, 0),
+    \sigma_p^2 = \sigma_{r,p}^2 + c + g\,\max(v_p, 0),
 
-read (and baseline) noise plus shot noise: ``g`` is the conversion gain in
+read (and baseline) noise, the variance ``c`` every lit pixel has beyond it
+(:attr:`PixelNoise.lit_variance`: rounding, and noise not proportional to
+the signal), plus shot noise: ``g`` is the conversion gain in
 grey levels per electron (:attr:`PixelNoise.dn_per_electron`; for the CCD
 model ``CCD.dn_per_electron``, for a real camera stated or estimated with
 :meth:`PixelNoise.estimate`), and ``sigma_r`` the pipeline's own noise
@@ -73,6 +75,13 @@ class PixelNoise:
         the dark. Default: the pipeline's own (its threshold over ``k``),
         which is what a pipeline made by :meth:`optitact.Pipeline.from_noload`
         measured.
+    lit_variance : float
+        Variance (grey levels squared) every lit pixel has beyond the read
+        and shot noise: the intercept of the photon-transfer line
+        (:meth:`estimate`). Rounding to grey levels adds about 1/12 to a
+        lit pixel that a dark one, whose noise is well below a grey level,
+        does not show; noise that grows less than linearly with the signal
+        (a path tracer's Monte Carlo noise) puts more here. Default 0.
 
     Examples
     --------
@@ -83,10 +92,12 @@ class PixelNoise:
 
     dn_per_electron: float
     read_sigma: float | None = None
+    lit_variance: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dn_per_electron",
                            positive(self.dn_per_electron, "dn_per_electron", allow_zero=True))
+        object.__setattr__(self, "lit_variance", positive(self.lit_variance, "lit_variance", allow_zero=True))
         if self.read_sigma is not None:
             object.__setattr__(self, "read_sigma", positive(self.read_sigma, "read_sigma", allow_zero=True))
 
@@ -114,9 +125,10 @@ class PixelNoise:
         PixelNoise
             ``dn_per_electron`` the slope ``g`` of the photon-transfer line
             ``var_pressed - var_noload = c + g (mean_pressed - mean_noload)``
-            over the lit pixels (least squares; the intercept ``c`` takes
-            the rounding noise, which a dark pixel whose noise is well below
-            one grey level does not show), and
+            over the lit pixels (least squares), ``lit_variance`` its
+            intercept ``c`` (at least 0: the rounding noise, which a dark
+            pixel whose noise is well below one grey level does not show,
+            and any noise that is not proportional to the signal), and
             ``read_sigma`` the no-load stack's rms temporal noise times
             ``sqrt(1 + 1/T)`` (the noise of a frame minus the stack's mean).
 
@@ -147,9 +159,9 @@ class PixelNoise:
         if np.count_nonzero(lit) < 10:
             raise InputError(f"pressed: only {np.count_nonzero(lit)} pixels have a mean signal above "
                              f"min_signal={min_signal:g} grey levels; press harder or lower min_signal")
-        g = max(float(np.polyfit(signal[lit], excess[lit], 1)[0]), 0.0)
+        slope, intercept = (float(c) for c in np.polyfit(signal[lit], excess[lit], 1))
         read = math.sqrt(float(a.var(axis=0, ddof=1).mean()) * (1.0 + 1.0 / a.shape[0]))
-        return cls(g, read)
+        return cls(max(slope, 0.0), read, max(intercept, 0.0))
 
 
 @dataclass(frozen=True)
@@ -227,7 +239,7 @@ def reading_errors(pipeline, frames, noise: PixelNoise, readings=None) -> Readin
         read2 = (thr / pipeline.k) ** 2
     else:
         read2 = (pipeline.noise_sigma * pipeline.dn_ratio) ** 2
-    var = read2 + noise.dn_per_electron * np.maximum(v, 0.0)
+    var = read2 + noise.lit_variance + noise.dn_per_electron * np.maximum(v, 0.0)
     key = fold.label[e] + (idx // n_ent) * n_el
     size = t_n * n_el
     area, wx, wy = (w[e] for w in fold.weights)

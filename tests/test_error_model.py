@@ -137,3 +137,27 @@ def test_malformed_error_model_in_a_file_is_refused(cal):
                         "samples": 10}
     with pytest.raises(InputError, match="error_model"):
         Calibration.from_dict(d)
+
+
+def test_fit_recovers_a_part_of_second_order_in_the_shear_for_fz():
+    """sigma_z^2 = s^2 + a^2 + (b Fz)^2 + (d Ft^2)^2: d comes back for Fz (QUADRATIC_SHEAR), and the
+    linear shear part it leaves is small; Fx and Fy have no second-order part; files round-trip it."""
+    from optitact.calib.error_model import QUADRATIC_SHEAR
+
+    assert QUADRATIC_SHEAR == (False, False, True)
+    rng = np.random.default_rng(12)
+    n = 60000
+    fz, ft = rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 0.5, n)
+    shear2 = np.array([0.0, 0.0, 0.08])
+    s = rng.uniform(0.0, 0.002, (n, 3))
+    sigma = np.sqrt(s**2 + FLOOR**2 + (RELATIVE * fz[:, None]) ** 2 + (shear2 * ft[:, None] ** 2) ** 2)
+    m = ErrorModel.fit(rng.normal(size=(n, 3)) * sigma, s, fz, ft)
+    assert m.shear2[2] == pytest.approx(0.08, rel=0.1) and m.shear2[0] == m.shear2[1] == 0.0
+    assert m.shear[2] < 0.004  # against the 0.02 N a linear part would need at Ft = 0.25 N
+    np.testing.assert_allclose(m.sigma(fz[:5], ft[:5]), np.sqrt(sigma[:5] ** 2 - s[:5] ** 2), rtol=0.1)
+    back = ErrorModel.from_dict(m.to_dict())
+    np.testing.assert_array_equal(back.shear2, m.shear2)
+    old = {k: v for k, v in m.to_dict().items() if k != "shear2"}  # a file written before the part
+    assert not ErrorModel.from_dict(old).shear2.any()
+    with pytest.raises(InputError, match=">= 0"):
+        ErrorModel(FLOOR, RELATIVE, 10, shear2=[0.0, 0.0, -0.1])

@@ -100,6 +100,8 @@ def test_the_conversion_gain_is_estimated_from_a_noload_and_a_pressed_stack(spot
         :, slice(*model.window[:2]), slice(*model.window[2:])]
     est = PixelNoise.estimate(noload, pressed)
     assert est.dn_per_electron == pytest.approx(ccd.dn_per_electron, rel=0.1)
+    # the line's intercept: rounding to grey levels, 1/12 on a lit pixel whose noise spans several levels
+    assert est.lit_variance == pytest.approx(1 / 12, abs=0.03)
     # dark pixels at an integer offset with 0.13 DN of read noise mostly round to the offset itself
     assert 0 <= est.read_sigma <= math.sqrt(float(ccd.variance_dn(np.zeros((1, 1)))[0, 0]))
     with pytest.raises(InputError, match="min_signal"):
@@ -261,3 +263,39 @@ def test_a_frame_read_end_to_end_gets_errors_from_its_pixels(spot, cal):
     err = reading_errors(pipe, frame, PixelNoise.from_ccd(ccd))
     assert err.G_se[0] > 0 and np.all(err.u_se[0] > 0)
     assert err.G_se[0] < 0.1 * pipe.process(frame).G[0]
+
+
+def test_the_photon_transfer_intercept_is_kept_as_the_lit_pixels_variance():
+    """Noise of variance c + g * signal on lit pixels (float frames: no rounding): estimate returns both,
+    and reading_errors counts c in every lit pixel (var G = sum a^2 (read^2 + c + g v), a direct sum)."""
+    rng = np.random.default_rng(11)
+    h, w, n = 40, 50, 400
+    signal = np.tile(np.linspace(0.0, 150.0, w), (h, 1))
+    c, g, read = 6.0, 0.5, 0.3
+    noload = 10.0 + rng.normal(0.0, read, (n, h, w))
+    pressed = 10.0 + signal + rng.normal(0.0, 1.0, (n, h, w)) * np.sqrt(read**2 + np.where(signal > 0, c, 0.0)
+                                                                      + g * signal)
+    est = PixelNoise.estimate(noload, pressed)
+    assert est.dn_per_electron == pytest.approx(g, rel=0.05)
+    assert est.lit_variance == pytest.approx(c, rel=0.1)
+    assert est.read_sigma == pytest.approx(read * math.sqrt(1 + 1 / n), rel=0.05)
+    assert PixelNoise(0.1).lit_variance == 0.0  # stated by hand: none unless given
+    with pytest.raises(InputError, match="lit_variance"):
+        PixelNoise(0.1, lit_variance=-1.0)
+
+
+def test_reading_errors_add_the_lit_variance_to_every_lit_pixel(spot):
+    model, ccd = spot
+    rad = model.radiance(nominal_energy(model.sensor), 0.5, (0.1, 0.0))
+    frame = next(model.frames(rad, 1, seed=5))[0]
+    pipe = model.pipe
+    without = reading_errors(pipe, frame, PixelNoise(ccd.dn_per_electron, 0.2))
+    with_c = reading_errors(pipe, frame, PixelNoise(ccd.dn_per_electron, 0.2, lit_variance=3.0))
+    # var G is sum a^2 sigma_p^2 over the lit pixels: c adds c * sum a^2 (the same pixels are lit)
+    fold = pipe.region_weights
+    g = frame.reshape(-1)[fold.pixel].astype(np.float64)
+    lit = (g > pipe._level(frame.dtype)[0]) & (fold.label == 0)
+    added = 3.0 * np.sum(fold.weights[0][lit] ** 2) / pipe.dn_ratio**2
+    assert with_c.cov[0, 0, 0] - without.cov[0, 0, 0] == pytest.approx(added, rel=1e-9)
+    diag = [np.diagonal(e.cov[0], axis1=-2, axis2=-1) for e in (with_c, without)]
+    assert np.all(diag[0] > diag[1])

@@ -227,7 +227,7 @@ def _validated(cal, set_path, val_path):
     print(f"optitact: error measured on {m.samples} validation samples: floor Fx {m.floor_n[0]:.4f}, Fy "
           f"{m.floor_n[1]:.4f}, Fz {m.floor_n[2]:.4f} N, plus Fx {m.relative[0]:.4f}, Fy {m.relative[1]:.4f}, "
           f"Fz {m.relative[2]:.4f} N per N of Fz and Fx {m.shear[0]:.4f}, Fy {m.shear[1]:.4f}, "
-          f"Fz {m.shear[2]:.4f} N per N of shear", file=sys.stderr)
+          f"Fz {m.shear[2]:.4f} N per N of shear, and Fz {m.shear2[2]:.4f} N per N² of shear", file=sys.stderr)
     return out
 
 

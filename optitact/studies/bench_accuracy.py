@@ -301,6 +301,7 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
     return noise, {"from": f"PixelNoise.estimate: the set's {len(fset.array('baseline'))} no-load frames and "
                            f"{repeats} renders of its frame {frame} with other seeds",
                    "dn_per_electron": round(noise.dn_per_electron, 6), "read_sigma": round(noise.read_sigma, 4),
+                   "lit_variance": round(noise.lit_variance, 4),
                    "ccd_dn_per_electron": round(ccd.dn_per_electron, 6)}
 
 
