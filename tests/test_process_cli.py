@@ -419,3 +419,41 @@ def test_out_is_checked_before_any_work(tmp_path, frames, capsys, monkeypatch, c
         with pytest.raises(InputError, match="out: .* is a folder"):
             process_files([tmp_path / "a.png", tmp_path / "b.png"], pipeline=optitact.Pipeline(SENSOR, CAM),
                           out=out)
+
+
+def test_the_progress_bar_appears_once_the_work_has_taken_its_delay(capsys):
+    """Work shorter than the delay shows no bar (tqdm is not even made); longer work gets tqdm's bar,
+    counting the frames done since the start."""
+    import time
+
+    from optitact.batch import _Progress
+
+    with _Progress(10, desc="process", delay=60.0) as bar:
+        bar.update(10)
+    assert capsys.readouterr().err == "" and bar._bar is None
+    with _Progress(10, desc="process", delay=0.02) as bar:
+        bar.update(4)  # before the delay: counted, not shown
+        time.sleep(0.03)
+        for _ in range(3):
+            bar.update(2)
+    err = capsys.readouterr().err
+    assert "process: 100%" in err and "10/10" in err and bar.n == 10
+
+
+def test_a_warning_is_one_line_with_or_without_a_progress_bar(capsys, monkeypatch):
+    """Without tqdm loaded the warning is printed as it is (tqdm is not imported for it); with tqdm
+    loaded it goes through tqdm.write, which keeps it clear of a bar."""
+    import sys
+
+    from optitact.cli import _one_line
+
+    monkeypatch.delitem(sys.modules, "tqdm", raising=False)
+    _one_line("lossy codec", UserWarning, "f.py", 1)
+    assert capsys.readouterr().err == "optitact: warning: lossy codec\n" and "tqdm" not in sys.modules
+    monkeypatch.undo()
+    import tqdm
+
+    written = []
+    monkeypatch.setattr(tqdm.tqdm, "write", classmethod(lambda cls, s, file=None: written.append(s)))
+    _one_line("lossy codec", UserWarning, "f.py", 1)
+    assert written == ["optitact: warning: lossy codec"]
