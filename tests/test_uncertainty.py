@@ -299,3 +299,35 @@ def test_reading_errors_add_the_lit_variance_to_every_lit_pixel(spot):
     assert with_c.cov[0, 0, 0] - without.cov[0, 0, 0] == pytest.approx(added, rel=1e-9)
     diag = [np.diagonal(e.cov[0], axis1=-2, axis2=-1) for e in (with_c, without)]
     assert np.all(diag[0] > diag[1])
+
+
+def test_the_photon_transfer_exponent_is_measured_when_asked_and_used_by_reading_errors(spot):
+    """Noise of variance g * signal^e (e = 0.75, as a path tracer's grows; float frames): exponent="fit"
+    recovers (g, e) and no intercept, where a straight line would invent one; reading_errors then uses
+    v^e in every lit pixel (var G = sum a^2 (read^2 + g v^e), a direct sum)."""
+    rng = np.random.default_rng(5)
+    h, w, n = 40, 60, 300
+    signal = np.tile(np.geomspace(2.0, 200.0, w), (h, 1))
+    g, e, read = 1.3, 0.75, 0.25
+    noload = 5.0 + rng.normal(0.0, read, (n, h, w))
+    pressed = 5.0 + signal + rng.normal(0.0, 1.0, (n, h, w)) * np.sqrt(read**2 + g * signal**e)
+    fit = PixelNoise.estimate(noload, pressed, min_signal=1.0, exponent="fit")
+    assert fit.exponent == pytest.approx(e, abs=0.03) and fit.dn_per_electron == pytest.approx(g, rel=0.1)
+    assert fit.lit_variance < 0.3
+    line = PixelNoise.estimate(noload, pressed, min_signal=1.0)
+    assert line.exponent == 1.0 and line.lit_variance > 3.0  # a straight line through a bent curve
+    with pytest.raises(InputError, match="exponent"):
+        PixelNoise.estimate(noload, pressed, exponent="guess")
+    with pytest.raises(InputError, match="exponent"):
+        PixelNoise(1.0, exponent=2.5)
+
+    model, ccd = spot
+    rad = model.radiance(nominal_energy(model.sensor), 0.5, (0.1, 0.0))
+    frame = next(model.frames(rad, 1, seed=6))[0]
+    pipe = model.pipe
+    err = reading_errors(pipe, frame, PixelNoise(0.05, 0.2, exponent=0.7))
+    fold = pipe.region_weights
+    v = frame.reshape(-1)[fold.pixel].astype(np.float64) - pipe.entry_baseline
+    lit = (frame.reshape(-1)[fold.pixel] > pipe._level(frame.dtype)[0]) & (fold.label == 0)
+    direct = np.sum(fold.weights[0][lit] ** 2 * (0.2**2 + 0.05 * np.maximum(v[lit], 0.0) ** 0.7))
+    assert err.cov[0, 0, 0] == pytest.approx(direct / pipe.dn_ratio**2, rel=1e-9)
