@@ -200,7 +200,8 @@ def _transfer_curve(signal: np.ndarray, excess: np.ndarray, iterations: int = 4)
     ``(c, g)``; the ``e`` with the least weighted squares wins.
     """
     slope, intercept = np.polyfit(signal, excess, 1)
-    model = np.maximum(intercept + slope * signal, np.maximum(np.mean(excess), 1e-12) * 1e-3)
+    tiny = max(abs(float(np.mean(excess))), 1e-12) * 1e-3  # keeps the weights finite
+    model = np.maximum(intercept + slope * signal, tiny)
     logs = np.log(signal)
     best = (0.0, 0.0, 1.0)
     for _ in range(iterations):
@@ -220,8 +221,8 @@ def _transfer_curve(signal: np.ndarray, excess: np.ndarray, iterations: int = 4)
             if sse < best_sse:
                 best_sse, best = sse, (float(c), float(g), float(e))
         c, g, e = best
-        model = np.maximum(c + g * signal**e, np.maximum(np.mean(excess), 1e-12) * 1e-3)
-    return best
+        model = np.maximum(c + g * signal**e, tiny)
+    return best if best[1] > 0.0 else (best[0], 0.0, 1.0)  # no part grows with the signal: no exponent
 
 
 @dataclass(frozen=True)
