@@ -526,3 +526,27 @@ def test_render_floor_is_the_spread_between_renders_of_the_same_loads(small_set,
     finally:
         ba._maker = real
     assert made == []
+
+
+@pytest.mark.render
+def test_frame_noise_renders_once_and_reads_the_cache_after(tmp_path):
+    """The bench's pixel-noise measurement of path-traced frames: re-renders of one load, kept in the
+    cache folder; a second call renders nothing and measures the same noise."""
+    from optitact.studies import bench_accuracy as ba
+
+    held = generate(tmp_path / "h.zarr", frames=2, camera=SMALL, spp=8, seed=31, progress=False,
+                    render_mode="pixels")
+    first, info = ba.frame_noise(held, repeats=3)
+    # the Monte Carlo noise of 8 spp, far above the CCD's shot noise at any signal the spots reach
+    signal = np.linspace(2.0, 200.0, 50)
+    assert np.all(first.dn_per_electron * signal**first.exponent + first.lit_variance
+                  > 5 * held.ccd.dn_per_electron * signal)
+    assert "3 renders of its frame 0" in info["from"]
+    made = []
+    real = ba._maker
+    try:
+        ba._maker = lambda *a, **k: made.append(1) or real(*a, **k)
+        again, _ = ba.frame_noise(held, repeats=3)
+    finally:
+        ba._maker = real
+    assert made == [] and again == first

@@ -280,7 +280,8 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
     signal, where the Monte Carlo noise is already above a grey level and the
     spots' rims are, which weigh most in the centroids), from the set's
     no-load stack and ``repeats`` renders of one of its loads (``frame``)
-    with other seeds (render and CCD), made as the set made its frames.
+    with other seeds (render and CCD), made as the set made its frames
+    (kept in the user cache folder, ``bench-noise``).
     A camera's straight line, fitted from 20 grey levels up, set 16 grey
     levels squared at 3 grey levels of signal and 20 at 10, where 8 renders
     of one load measured 3 and 9.
@@ -298,10 +299,23 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
         noise = PixelNoise.from_ccd(fset.ccd)
         return noise, {"from": "the CCD model (two-stage frames: no Monte Carlo noise)",
                        "dn_per_electron": noise.dn_per_electron}
-    maker = _maker(fset, keep_frames=True)
+    from optitact._cache import cached_arrays
+    from optitact.io import json_fingerprint
+
     forces = fset.forces()[frame]
     seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 77, frame]).generate_state(repeats)
-    pressed = np.stack([maker(forces, int(s))["frame"] for s in seeds])
+
+    def render() -> dict:  # seconds a render: kept in the cache folder, as the floors' re-renders
+        maker = _maker(fset, keep_frames=True)
+        return {"pressed": np.stack([maker(forces, int(s))["frame"] for s in seeds])}
+
+    def check(a: dict) -> None:
+        if a["pressed"].shape != (repeats, *fset.camera.shape):
+            raise ValueError("not this set's re-renders")
+
+    key = {"set": dict(fset.attrs), "frame": int(frame), "repeats": int(repeats),
+           "forces": json_fingerprint(forces.tolist(), 16)}
+    pressed = cached_arrays("bench-noise", key, render, check)["pressed"]
     noise = PixelNoise.estimate(fset.array("baseline"), pressed, min_signal=2.0, exponent="fit")
     ccd = PixelNoise.from_ccd(fset.ccd)
     return noise, {"from": f"PixelNoise.estimate: the set's {len(fset.array('baseline'))} no-load frames and "
