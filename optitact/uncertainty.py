@@ -106,9 +106,7 @@ class PixelNoise:
         object.__setattr__(self, "dn_per_electron",
                            positive(self.dn_per_electron, "dn_per_electron", allow_zero=True))
         object.__setattr__(self, "lit_variance", positive(self.lit_variance, "lit_variance", allow_zero=True))
-        object.__setattr__(self, "exponent", positive(self.exponent, "exponent"))
-        if self.exponent > 2.0:
-            raise InputError(f"exponent must be in (0, 2], got {self.exponent!r}")
+        object.__setattr__(self, "exponent", _exponent(self.exponent))
         if self.read_sigma is not None:
             object.__setattr__(self, "read_sigma", positive(self.read_sigma, "read_sigma", allow_zero=True))
 
@@ -185,9 +183,17 @@ class PixelNoise:
                 raise InputError(f"exponent must be a number or 'fit', got {exponent!r}")
             intercept, slope, power = _transfer_curve(signal[lit], excess[lit])
             return cls(slope, read, intercept, power)
-        power = cls(0.0, exponent=exponent).exponent  # validated
+        power = _exponent(exponent)
         slope, intercept = (float(c) for c in np.polyfit(signal[lit] ** power, excess[lit], 1))
         return cls(max(slope, 0.0), read, max(intercept, 0.0), power)
+
+
+def _exponent(value) -> float:
+    """A :attr:`PixelNoise.exponent`, validated: a number in (0, 2]."""
+    e = positive(value, "exponent")
+    if e > 2.0:
+        raise InputError(f"exponent must be in (0, 2], got {value!r}")
+    return e
 
 
 def _transfer_curve(signal: np.ndarray, excess: np.ndarray, iterations: int = 4) -> tuple[float, float, float]:

@@ -235,6 +235,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                     f, r = fl[f"{ax}_floor_pct_fs"], scores[f"{ax}_rmse_pct_fs"]
                     scores[f"{ax}_floor_pct_fs"] = f
                     scores[f"{ax}_beyond_floor_pct_fs"] = round(float(np.sqrt(max(r * r - f * f, 0.0))), 3)
+            for fl in list(floors.values())[:1]:  # how it was measured: the same for every model
                 out["families"][fam]["floor"] = {k: fl[k] for k in ("frames", "samples", "from")}
     out["models"] = out["families"][families[0]]["models"]
     if len(families) > 1 and pooled:  # every family's frames together: the issue's "over the held-out families"
@@ -299,23 +300,9 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
         noise = PixelNoise.from_ccd(fset.ccd)
         return noise, {"from": "the CCD model (two-stage frames: no Monte Carlo noise)",
                        "dn_per_electron": noise.dn_per_electron}
-    from optitact._cache import cached_arrays
-    from optitact.io import json_fingerprint
-
     forces = fset.forces()[frame]
     seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 77, frame]).generate_state(repeats)
-
-    def render() -> dict:  # seconds a render: kept in the cache folder, as the floors' re-renders
-        maker = _maker(fset, keep_frames=True)
-        return {"pressed": np.stack([maker(forces, int(s))["frame"] for s in seeds])}
-
-    def check(a: dict) -> None:
-        if a["pressed"].shape != (repeats, *fset.camera.shape):
-            raise ValueError("not this set's re-renders")
-
-    key = {"set": dict(fset.attrs), "frame": int(frame), "repeats": int(repeats),
-           "forces": json_fingerprint(forces.tolist(), 16)}
-    pressed = cached_arrays("bench-noise", key, render, check)["pressed"]
+    pressed = _made_again(fset, [forces] * repeats, seeds, ("frame",), "bench-noise")["frame"]
     noise = PixelNoise.estimate(fset.array("baseline"), pressed, min_signal=2.0, exponent="fit")
     ccd = PixelNoise.from_ccd(fset.ccd)
     return noise, {"from": f"PixelNoise.estimate: the set's {len(fset.array('baseline'))} no-load frames and "
@@ -352,6 +339,31 @@ def _maker(fset, *, keep_frames: bool = False):
                       variant=None, table=table, keep_frames=keep_frames)
 
 
+def _made_again(fset, forces, seeds, names, kind: str) -> dict:
+    """``fset``'s frames of ``forces`` (k, E, 3) made again with ``seeds``: the outputs ``names`` stacked.
+
+    Renders take seconds each, so they are kept in the user cache folder
+    (subfolder ``kind``), keyed by the set, the loads and the seeds.
+    """
+    from optitact._cache import cached_arrays
+    from optitact.io import json_fingerprint
+
+    forces = np.asarray(forces, dtype=np.float64)
+
+    def render() -> dict:
+        maker = _maker(fset, keep_frames="frame" in names)
+        made = [maker(f, int(s)) for f, s in zip(forces, seeds, strict=True)]
+        return {k: np.stack([m[k] for m in made]) for k in names}
+
+    def check(a: dict) -> None:
+        if any(len(a[k]) != len(forces) for k in names):
+            raise ValueError("not these renders")
+
+    key = {"set": dict(fset.attrs), "forces": json_fingerprint(forces.tolist(), 16),
+           "seeds": [int(s) for s in seeds], "names": list(names)}
+    return cached_arrays(kind, key, render, check)
+
+
 def render_floor(fset, cals: dict, frames: int, fs) -> dict:
     """Each model's error floor on a held-out set: its forces' spread between renders of the same loads.
 
@@ -371,30 +383,16 @@ def render_floor(fset, cals: dict, frames: int, fs) -> dict:
         Per model ``{"fx_floor_pct_fs", "fy_floor_pct_fs", "fz_floor_pct_fs"}``
         (% of ``fs``), with ``frames`` and ``samples`` (loaded samples).
     """
-    from optitact.io import json_fingerprint
     from optitact.readings import Readings
 
     if fset.attrs.get("render_mode", "full") == "two_stage":
         seeds_note = "two-stage frames: no Monte Carlo noise, the camera's alone"
     else:
         seeds_note = "path-traced frames: their Monte Carlo noise and the camera's"
-    from optitact._cache import cached_arrays
-
     n = min(int(frames), int(fset.done.sum()))
     truth = fset.forces()[:n]
-
-    def render() -> dict:  # seconds a frame where every element is loaded: kept in the cache folder
-        maker = _maker(fset)
-        seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 78]).generate_state(n)
-        again = [maker(truth[t], int(seeds[t])) for t in range(n)]
-        return {k: np.stack([o[k] for o in again]) for k in ("G", "u", "contact", "saturated")}
-
-    def check(a: dict) -> None:
-        if a["G"].shape != truth.shape[:2] or a["u"].shape != truth.shape[:2] + (2,):
-            raise ValueError("not this set's re-renders")
-
-    key = {"set": dict(fset.attrs), "frames": n, "forces": json_fingerprint(truth.tolist(), 16)}
-    a = cached_arrays("bench-floor", key, render, check)
+    seeds = np.random.SeedSequence([int(fset.attrs["seed"]), 78]).generate_state(n)
+    a = _made_again(fset, truth, seeds, ("G", "u", "contact", "saturated"), "bench-floor")
     second = Readings(a["G"], a["u"], a["contact"], a["saturated"])
     first = fset.readings()[:n]
     loaded = truth[..., 2] > 0
