@@ -2,7 +2,12 @@
 
 Every source yields ``(source, frame)`` pairs, frames as 2-D greyscale arrays
 in their own dtype (8- or 16-bit images stay 8- or 16-bit; colour images and
-video frames are converted to grey with OpenCV's BGR-to-grey weights).
+video frames are converted to grey with OpenCV's BGR-to-grey weights). Two
+kinds of video skip the conversion: 8-bit grey ones (FFV1, raw) are read as
+grey (the same levels), and Motion JPEG ones as their luma plane, the grey
+image of those weights without the round trip through BGR (the same levels
+on grey content, within the round trip's rounding of one level on colour;
+see :func:`_luma_reader`).
 
 Lossy and truncated sources
 ---------------------------
@@ -30,6 +35,7 @@ import struct
 import threading
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +52,12 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".wmv", ".mpg", ".mpeg
 _ARRAY_SUFFIXES = (".npy",)
 _END = object()  # read_ahead: the items are done
 _GREY8 = int.from_bytes(b"Y800", "little")  # OpenCV's CAP_PROP_CODEC_PIXEL_FORMAT of 8-bit grey video
+#: OpenCV's CAP_PROP_CODEC_PIXEL_FORMAT of 8-bit YUV formats whose first plane is the luma at full size
+_PLANAR_YUV = frozenset(int.from_bytes(t, "little") for t in (b"I420", b"YV12", b"Y42B", b"444P", b"NV12",
+                                                                 b"NV21"))
+#: Video codecs (as :data:`LOSSLESS_CODECS` names them) whose YUV is full range (JPEG's): their luma
+#: plane is the grey image that OpenCV's BGR read and ``cvtColor`` give (see :func:`_luma_reader`).
+FULL_RANGE_CODECS = frozenset({"mjpg"})
 #: Grey levels that :func:`read_ahead_depth` lets a batch run decode ahead of the frames being processed.
 READ_AHEAD_BYTES = 64 << 20
 
@@ -359,6 +371,75 @@ def read_ahead(items: Iterable, depth: int) -> ReadAhead:
     return ReadAhead(items, depth)
 
 
+def _fourcc(cap, cv2) -> str:
+    """The FOURCC of the opened video ``cap``'s codec, as four characters."""
+    return (int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF).to_bytes(4, "little").decode("latin-1")
+
+
+def _codec_name(cap, cv2) -> str:
+    """The codec's FOURCC as :data:`LOSSLESS_CODECS` and :data:`FULL_RANGE_CODECS` name it."""
+    return _fourcc(cap, cv2).strip(" \0").lower()
+
+
+@contextmanager
+def _quiet_opencv(cv2):
+    """OpenCV's log level at ERROR or quieter for the block (restored after the last such block ends).
+
+    Read as its luma plane, a YUV video makes OpenCV warn at every frame that its pixel format
+    "will be treated as 8UC1", which is what is asked for here.
+    """
+    global _quiet_blocks, _quiet_saved
+    with _quiet_lock:
+        if _quiet_blocks == 0:
+            _quiet_saved = cv2.utils.logging.getLogLevel()
+            cv2.utils.logging.setLogLevel(min(_quiet_saved, cv2.utils.logging.LOG_LEVEL_ERROR))
+        _quiet_blocks += 1
+    try:
+        yield
+    finally:
+        with _quiet_lock:
+            _quiet_blocks -= 1
+            if _quiet_blocks == 0:
+                cv2.utils.logging.setLogLevel(_quiet_saved)
+
+
+_quiet_lock = threading.Lock()
+_quiet_blocks = 0
+_quiet_saved = None
+
+
+def _luma_reader(f: Path, cap, cv2) -> tuple:
+    """``(capture, first frame)`` of a full-range planar-YUV video: read as its luma plane if that works.
+
+    The luma plane of a JPEG-coded frame is its grey image: OpenCV's default
+    read converts it to BGR, and ``cvtColor`` back to grey with the same
+    weights, which gives the luma again up to the round trip's rounding
+    (identical levels on grey content; a fifth less decoding time at
+    640x480). OpenCV hands the plane over when its conversion is turned off
+    (``CAP_PROP_CONVERT_RGB``), for formats it calls unsupported. So frame
+    0 is read both ways: the luma read is kept when it has the frame's shape
+    and is within one grey level of the converted frame everywhere;
+    otherwise (another OpenCV build, another plane layout) the video is read
+    converted, as any other. ``cap`` is open with nothing read; the capture
+    not returned is released.
+    """
+    raw = cv2.VideoCapture(str(f))
+    try:
+        raw.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        ok_raw, luma = raw.read()
+        ok, img = cap.read()
+    except BaseException:
+        raw.release()
+        raise
+    grey = _grey(img, f"{f}#0") if ok else None
+    if (ok and ok_raw and luma.dtype == np.uint8 and luma.shape == grey.shape
+            and grey.dtype == np.uint8 and np.abs(luma.astype(np.int16) - grey).max() <= 1):
+        cap.release()
+        return raw, luma
+    raw.release()
+    return cap, img if ok else None
+
+
 def check_codec(f: Path, cap) -> None:
     """Warn (once per file) when the opened video ``cap`` of file ``f`` uses a codec not known to be lossless.
 
@@ -367,8 +448,7 @@ def check_codec(f: Path, cap) -> None:
     """
     import cv2
 
-    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
-    codec = fourcc.to_bytes(4, "little").decode("latin-1")
+    codec = _fourcc(cap, cv2)
     name = codec.strip(" \0").lower()
     if name not in LOSSLESS_CODECS:
         what = (f"is lossy ({_LOSSY_NAMES[name]})" if name in _LOSSY_NAMES
@@ -384,19 +464,27 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
     if not cap.isOpened():
         raise InputError(f"{f}: OpenCV cannot open this video (unknown format, or a truncated or "
                          f"corrupt file)")
-    k = 0
+    k, held = 0, ExitStack()
     try:
         check_frame_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
                          str(f))
         announced = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         check_codec(f, cap)
-        if int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) == _GREY8:
+        pixels = int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT))
+        first = None
+        if pixels == _GREY8:
             # decoded as 8-bit grey: read it as it is, not converted to BGR and back (the same
             # grey levels; a quarter less decoding time)
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        elif pixels in _PLANAR_YUV and _codec_name(cap, cv2) in FULL_RANGE_CODECS:
+            held.enter_context(_quiet_opencv(cv2))
+            cap, first = _luma_reader(f, cap, cv2)
         colour, name = None, f.name
         while True:
-            ok, img = cap.read(colour)
+            if first is not None:
+                ok, img, first = True, first, None
+            else:
+                ok, img = cap.read(colour)
             if not ok:
                 break
             grey = _grey(img, f"{f}#{k}")
@@ -407,6 +495,7 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
             k += 1
     finally:
         cap.release()
+        held.close()
     if k == 0:
         raise InputError(f"{f}: the video has no readable frames")
     if 0 < k < announced:

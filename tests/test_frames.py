@@ -332,3 +332,86 @@ def test_a_video_read_ahead_is_the_video(tmp_path):
     ahead = list(read_ahead(iter_frames([path]), depth=2))
     assert [n for n, _ in ahead] == [n for n, _ in direct]
     assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(ahead, direct, strict=True))
+
+
+def _bgr_read(path):
+    """A video as a user reads it: OpenCV's BGR frames, then its BGR-to-grey conversion."""
+    cap = cv2.VideoCapture(str(path))
+    out = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        out.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    cap.release()
+    return out
+
+
+def _colour_mjpg(path, saturated):
+    rng = np.random.default_rng(5)
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (W, H), True)
+    for _ in range(8):
+        img = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+        vw.write(img if saturated else cv2.GaussianBlur(img, (5, 5), 2))
+    vw.release()
+    return path
+
+
+def test_a_grey_mjpg_video_is_read_as_its_luma_plane_with_the_levels_of_a_colour_read(tmp_path):
+    """JPEG's full-range luma is the grey image: read without the BGR round trip, the same levels."""
+    from optitact.frames import _luma_reader
+
+    path = _video(tmp_path / "m.avi", "MJPG", _frames())
+    cap = cv2.VideoCapture(str(path))
+    used, first = _luma_reader(path, cap, cv2)
+    try:
+        assert used.get(cv2.CAP_PROP_CONVERT_RGB) == 0  # the luma plane is what is read
+    finally:
+        used.release()
+    truth = _bgr_read(path)
+    assert np.array_equal(first, truth[0])
+    with pytest.warns(FramesWarning, match="lossy"):
+        got = [f for _, f in iter_frames([path])]
+    assert len(got) == len(truth) == N_FRAMES
+    assert all(g.dtype == np.uint8 and g.shape == (H, W) for g in got)
+    assert all(np.array_equal(g, t) for g, t in zip(got, truth, strict=True))
+
+
+def test_a_colour_mjpg_video_reads_its_luma_within_the_round_trips_rounding(tmp_path):
+    path = _colour_mjpg(tmp_path / "c.avi", saturated=False)
+    truth = _bgr_read(path)
+    with pytest.warns(FramesWarning, match="lossy"):
+        got = [f for _, f in iter_frames([path])]
+    assert len(got) == len(truth) == 8
+    diff = [np.abs(g.astype(int) - t).max() for g, t in zip(got, truth, strict=True)]
+    assert max(diff) <= 1  # the luma, up to the BGR round trip's rounding of it
+
+
+def test_a_video_whose_luma_read_differs_is_read_through_bgr(tmp_path):
+    """Saturated colours clip in the BGR round trip: the luma check fails and the read is OpenCV's BGR."""
+    from optitact.frames import _luma_reader
+
+    path = _colour_mjpg(tmp_path / "s.avi", saturated=True)
+    cap = cv2.VideoCapture(str(path))
+    used, first = _luma_reader(path, cap, cv2)
+    try:
+        assert used.get(cv2.CAP_PROP_CONVERT_RGB) == 1 and first.ndim == 3
+    finally:
+        used.release()
+    truth = _bgr_read(path)
+    with pytest.warns(FramesWarning, match="lossy"):
+        got = [f for _, f in iter_frames([path])]
+    assert all(np.array_equal(g, t) for g, t in zip(got, truth, strict=True))
+
+
+def test_opencvs_log_level_is_quiet_while_a_luma_video_is_read_and_restored_after(tmp_path):
+    path = _video(tmp_path / "m.avi", "MJPG", _frames(4))
+    before = cv2.utils.logging.getLogLevel()
+    assert before > cv2.utils.logging.LOG_LEVEL_ERROR  # warnings shown, as OpenCV starts
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FramesWarning)
+        frames = iter_frames([path])
+        next(frames)
+        assert cv2.utils.logging.getLogLevel() == cv2.utils.logging.LOG_LEVEL_ERROR
+        frames.close()
+    assert cv2.utils.logging.getLogLevel() == before
