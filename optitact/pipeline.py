@@ -33,6 +33,7 @@ the dome point of grid coordinate ``(x, y)``).
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 
@@ -113,6 +114,8 @@ __all__ = [
 METHODS = ("fast", "reference")
 #: What G does with the energy the threshold clips from the spots' tails (``Pipeline(tail=...)``).
 TAILS = ("none", "gaussian")
+#: Options of :class:`Pipeline` that change how it runs, not its readings (:meth:`Pipeline.replace`).
+RUN_OPTIONS = frozenset({"kernel", "threads"})
 #: Most frames the fast method's NumPy kernel processes together (bounds its temporary memory).
 CHUNK_FRAMES = 64
 #: Region entries (frames x entries per frame) the NumPy kernel processes together: its
@@ -293,15 +296,7 @@ class Pipeline:
             raise InputError(f"tail must be one of {TAILS}, got {tail!r}")
         #: How G treats the energy the threshold clips from the spots' tails (see ``tail``).
         self.tail = tail
-        if kernel not in _kernel.KERNELS:
-            raise InputError(f"kernel must be one of {_kernel.KERNELS}, got {kernel!r}")
-        self._kernel_request = kernel
-        #: The fast method's kernel that runs: ``"numba"`` (compiled, the ``fast`` extra) or
-        #: ``"numpy"`` (the fallback; also what runs after a filter).
-        self.kernel = _kernel.resolve(kernel)
-        self._threads_request = threads
-        #: Most threads a (T, H, W) batch is split across (default: the cores this process may use).
-        self.threads = _cores() if threads is None else integer(threads, "threads", minimum=1)
+        self._run_with(kernel, threads)
         self.sensor, self.camera, self.method = sensor, camera, method
         self.filter, self.filter_size = filter, filter_size
         self.noise_sigma = positive(noise_sigma, "noise_sigma", allow_zero=True)
@@ -379,6 +374,18 @@ class Pipeline:
                               else self.baseline.reshape(-1)[self.region_weights.pixel])
 
     # ------------------------------------------------------------------ set-up
+    def _run_with(self, kernel: str, threads: int | None) -> None:
+        """Set how the pipeline runs (``kernel`` and ``threads``: they change no reading)."""
+        if kernel not in _kernel.KERNELS:
+            raise InputError(f"kernel must be one of {_kernel.KERNELS}, got {kernel!r}")
+        self._kernel_request = kernel
+        #: The fast method's kernel that runs: ``"numba"`` (compiled, the ``fast`` extra) or
+        #: ``"numpy"`` (the fallback; also what runs after a filter).
+        self.kernel = _kernel.resolve(kernel)
+        self._threads_request = threads
+        #: Most threads a (T, H, W) batch is split across (default: the cores this process may use).
+        self.threads = _cores() if threads is None else integer(threads, "threads", minimum=1)
+
     def _check_baseline(self, baseline) -> tuple[np.ndarray, np.ndarray | None]:
         """The baseline's mean and its per-pixel noise (grey levels of ``frame - baseline``).
 
@@ -458,7 +465,15 @@ class Pipeline:
         """A pipeline with some options changed (the geometry is shared when unchanged).
 
         A new ``filter`` without a ``filter_size`` takes that filter's default size.
+        Changing only :data:`RUN_OPTIONS` (how it runs, not what it reads) copies the
+        pipeline as it is: no baseline statistics or thresholds are made again.
         """
+        if changes and changes.keys() <= RUN_OPTIONS:  # the same readings: nothing to make again
+            out = copy.copy(self)
+            out._levels = dict(self._levels)
+            out._run_with(changes.get("kernel", self._kernel_request),
+                          changes.get("threads", self._threads_request))
+            return out
         opts = self._options() | {"baseline": self._baseline_input} | changes
         if "filter" in changes and "filter_size" not in changes:
             opts["filter_size"] = None

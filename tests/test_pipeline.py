@@ -779,6 +779,33 @@ def test_baseline_stack_is_averaged_and_read_only(small):
     assert small.replace(filter="median").replace(filter="gaussian").filter_size == 1.0
 
 
+
+def test_replacing_how_a_pipeline_runs_copies_it_without_measuring_again(small, small_scene):
+    """kernel and threads change no reading: replace() copies the pipeline, not measuring the baseline again."""
+    from optitact.pipeline import RUN_OPTIONS
+
+    frame, base, _ = small_scene
+    pipe = small.with_baseline(base.astype(np.uint8))
+    frames = np.stack([frame, base]).astype(np.uint8)
+    pipe.process(frames)  # fills the per-dtype cache, which the copy must not share
+    for changes in ({"kernel": "numpy"}, {"threads": 1}, {"kernel": "auto", "threads": 2}):
+        assert changes.keys() <= RUN_OPTIONS
+        other = pipe.replace(**changes)
+        assert other is not pipe and other._levels is not pipe._levels
+        assert other.noise_map is pipe.noise_map and other.entry_threshold is pipe.entry_threshold
+        assert other.floor is pipe.floor  # not made again
+        fresh = Pipeline(SENSOR, SMALL, baseline=base.astype(np.uint8), **changes)
+        assert (other.kernel, other.threads) == (fresh.kernel, fresh.threads)
+        np.testing.assert_array_equal(other.floor, fresh.floor)
+        a, b = other.process(frames), fresh.process(frames)
+        for x, y in zip((a.G, a.u, a.contact, a.saturated), (b.G, b.u, b.contact, b.saturated), strict=True):
+            np.testing.assert_array_equal(x, y)
+    assert (pipe.kernel, pipe.threads) == (small.kernel, small.threads)  # the original is unchanged
+    with pytest.raises(InputError, match="kernel must be one of"):
+        pipe.replace(kernel="fortran")
+    with pytest.raises(InputError, match="threads"):
+        pipe.replace(threads=0)
+
 def test_from_noload(small, small_scene):
     frame, base, elements = small_scene
     rng = np.random.default_rng(2)
