@@ -12,7 +12,6 @@ after a denoising filter (NumPy only).
 from __future__ import annotations
 
 import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -27,7 +26,7 @@ __all__ = ["BLOCKS_PER_THREAD", "MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_
 #: With ``threads=None`` a stack is split so that each thread gets at least this many frames.
 MIN_FRAMES_PER_THREAD = 8
 
-_pools: dict[int, ThreadPoolExecutor] = {}
+_pools: dict = {}  # workers -> ThreadPoolExecutor
 _pools_lock = threading.Lock()
 
 
@@ -38,10 +37,12 @@ def thread_count(requested: int | None, cores: int, n_frames: int) -> int:
     return max(1, min(requested, n_frames))
 
 
-def _pool(n: int) -> ThreadPoolExecutor:
+def _pool(n: int):
     """A thread pool of ``n`` workers kept for the process's life (no thread start per call)."""
     pool = _pools.get(n)
     if pool is None:
+        from concurrent.futures import ThreadPoolExecutor  # 6 ms to import: not for one thread
+
         with _pools_lock:
             pool = _pools.setdefault(n, ThreadPoolExecutor(n, thread_name_prefix="optitact-frames"))
     return pool
