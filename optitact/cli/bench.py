@@ -166,7 +166,8 @@ def add_parsers(sub) -> None:
                     "then time side by side in each repeat three fresh processes on it: optitact process "
                     "(with the shipped calibration at its camera's size, readings alone elsewhere), the "
                     "decode loop a user would write (cv2.VideoCapture read + cvtColor) and that loop run "
-                    "as process reads frames (OpenCV's worker pool off, one OpenBLAS thread). Reports "
+                    "as process reads frames (OpenCV's worker pool off, one OpenBLAS thread, grey video "
+                    "read as grey and Motion JPEG as its luma plane). Reports "
                     "median wall and CPU seconds (the OS's accounting of each child) and the medians of "
                     "the per-repeat ratios. One JSON object on stdout.")
     bproc.add_argument("--size", nargs="+", default=["640x480", "1280x960"], metavar="WxH",
