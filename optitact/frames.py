@@ -389,10 +389,14 @@ def _quiet_opencv(cv2):
     "will be treated as 8UC1", which is what is asked for here.
     """
     global _quiet_blocks, _quiet_saved
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is None:  # an OpenCV without its logging module: its warnings stay as they are
+        yield
+        return
     with _quiet_lock:
         if _quiet_blocks == 0:
-            _quiet_saved = cv2.utils.logging.getLogLevel()
-            cv2.utils.logging.setLogLevel(min(_quiet_saved, cv2.utils.logging.LOG_LEVEL_ERROR))
+            _quiet_saved = log.getLogLevel()
+            log.setLogLevel(min(_quiet_saved, log.LOG_LEVEL_ERROR))
         _quiet_blocks += 1
     try:
         yield
@@ -400,7 +404,7 @@ def _quiet_opencv(cv2):
         with _quiet_lock:
             _quiet_blocks -= 1
             if _quiet_blocks == 0:
-                cv2.utils.logging.setLogLevel(_quiet_saved)
+                log.setLogLevel(_quiet_saved)
 
 
 _quiet_lock = threading.Lock()
