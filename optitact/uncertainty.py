@@ -44,8 +44,10 @@ separate NumPy pass over the lit pixels, run only when errors are asked for.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -109,6 +111,58 @@ class PixelNoise:
         object.__setattr__(self, "exponent", _exponent(self.exponent))
         if self.read_sigma is not None:
             object.__setattr__(self, "read_sigma", positive(self.read_sigma, "read_sigma", allow_zero=True))
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the four parameters (``read_sigma`` None: the pipeline's own)."""
+        return {"dn_per_electron": self.dn_per_electron, "read_sigma": self.read_sigma,
+                "lit_variance": self.lit_variance, "exponent": self.exponent}
+
+    @classmethod
+    def from_dict(cls, d) -> PixelNoise:
+        """Build from :meth:`to_dict` output; InputError naming what is missing, unknown or out of range."""
+        if not isinstance(d, dict):
+            raise InputError(f"a pixel noise model must be a JSON object, got {type(d).__name__}")
+        fields = ("dn_per_electron", "read_sigma", "lit_variance", "exponent")
+        if "dn_per_electron" not in d or set(d) - set(fields):
+            raise InputError(f"a pixel noise model has dn_per_electron and optionally read_sigma, "
+                             f"lit_variance and exponent, got {sorted(d)}")
+        for name in fields:
+            value = d.get(name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise InputError(f"pixel noise {name} must be a number, got {value!r}")
+        return cls(**d)
+
+    def save(self, path, *, measured: dict | None = None) -> Path:
+        """Write the model as JSON (atomically), with ``measured``: where it came from (kept, not read).
+
+        ``optitact calibrate noise`` writes one; ``optitact process --stderr
+        --noise FILE`` and :meth:`load` read it.
+        """
+        from .io import write_json
+
+        path = Path(path)
+        doc = {"pixel_noise": self.to_dict()} | ({} if measured is None else {"measured": measured})
+        write_json(path, doc)
+        return path
+
+    @classmethod
+    def load(cls, path) -> PixelNoise:
+        """A model written by :meth:`save`; InputError naming the file if it is not one."""
+        path = Path(path)
+        try:
+            doc = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise InputError(f"{path}: no such noise file (write one with optitact calibrate noise)") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: not a noise JSON file ({exc})") from None
+        if not isinstance(doc, dict) or "pixel_noise" not in doc:
+            got = sorted(doc) if isinstance(doc, dict) else type(doc).__name__
+            raise InputError(f"{path}: expected a JSON object with 'pixel_noise' (as optitact calibrate noise "
+                             f"writes), got {got}")
+        try:
+            return cls.from_dict(doc["pixel_noise"])
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{path}: {exc}") from None
 
     @classmethod
     def from_ccd(cls, ccd) -> PixelNoise:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import subprocess
 import sys
 import textwrap
@@ -411,3 +412,81 @@ def test_process_files_restores_the_switch_interval(tmp_path):
     with pytest.raises(InputError):
         process_files([tmp_path / "bad.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=tmp_path / "b.csv")
     assert sys.getswitchinterval() == before
+
+
+def _photon_stacks(gain: float, read: float, n: int = 40, seed: int = 11):
+    """No-load and pressed stacks of a camera with shot noise of known gain (DN per electron) and read noise."""
+    rng = np.random.default_rng(seed)
+    signal = np.tile(np.linspace(0.0, 200.0, CAM.shape[1]), (CAM.shape[0], 1))  # mean DN above the dark level
+    dark = 10.0 + rng.normal(0.0, read, (n, *CAM.shape))
+    shot = gain * rng.poisson(signal / gain, (n, *CAM.shape))
+    pressed = np.clip(np.rint(10.0 + shot + rng.normal(0.0, read, (n, *CAM.shape))), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(dark), 0, 255).astype(np.uint8), pressed
+
+
+def test_calibrate_noise_measures_the_conversion_gain_and_process_reads_the_file(tmp_path, capsys):
+    """calibrate noise recovers a known gain; process --stderr --noise reads as --dn-per-electron does."""
+    from optitact.uncertainty import PixelNoise
+
+    noload, pressed = _photon_stacks(gain=0.5, read=1.5)
+    np.save(tmp_path / "noload.npy", noload)
+    np.save(tmp_path / "pressed.npy", pressed)
+    assert main(["calibrate", "noise", "--noload", str(tmp_path / "noload.npy"), "--pressed",
+                 str(tmp_path / "pressed.npy"), "--out", str(tmp_path / "noise.json")]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    model = PixelNoise.load(tmp_path / "noise.json")
+    assert printed == model.to_dict()
+    assert model.dn_per_electron == pytest.approx(0.5, rel=0.1) and model.exponent == 1.0
+    # rounding adds 1/12 to lit pixels; the dark frames' noise is the read noise (and its rounding)
+    assert model.lit_variance == pytest.approx(1 / 12, abs=0.1)
+    assert model.read_sigma == pytest.approx(math.sqrt(1.5**2 + 1 / 12) * math.sqrt(1 + 1 / 40), rel=0.05)
+    doc = json.loads((tmp_path / "noise.json").read_text())
+    assert doc["measured"]["noload_frames"] == doc["measured"]["pressed_frames"] == 40
+
+    # process: a noise file holding only a gain reads as --dn-per-electron with that gain
+    PixelNoise(0.05).save(tmp_path / "gain.json")
+    cal = _calibration()
+    cal.save(tmp_path / "cal.json")
+    np.save(tmp_path / "rec.npy", _loaded_frames(5, seed=4))
+    common = ["process", str(tmp_path / "rec.npy"), "--calibration", str(tmp_path / "cal.json"), "--stderr"]
+    assert main([*common, "--noise", str(tmp_path / "gain.json"), "--out", str(tmp_path / "a.csv")]) == 0
+    assert main([*common, "--dn-per-electron", "0.05", "--out", str(tmp_path / "b.csv")]) == 0
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    assert main([*common, "--noise", str(tmp_path / "noise.json"), "--out", str(tmp_path / "c.csv")]) == 0
+    a, c = _rows(tmp_path / "a.csv"), _rows(tmp_path / "c.csv")
+    lit = [i for i, row in enumerate(a) if row["contact"] == "1"]
+    assert lit and all(float(c[i]["fz_se"]) > float(a[i]["fz_se"]) for i in lit)  # ten times the gain: noisier
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--noise", "N"], "--noise is for --stderr"),
+    (["--stderr", "--noise", "N", "--dn-per-electron", "0.1"], "not both"),
+    (["--stderr", "--noise", "missing.json"], "no such noise file"),
+    (["--stderr", "--noise", "BAD"], "expected a JSON object with 'pixel_noise'"),
+    (["--stderr", "--noise", "NEG"], "dn_per_electron must be finite and >= 0"),
+])
+def test_process_refuses_a_bad_noise_option(tmp_path, capsys, extra, match):
+    cal = _calibration()
+    cal.save(tmp_path / "cal.json")
+    np.save(tmp_path / "rec.npy", _loaded_frames(3, seed=4))
+    (tmp_path / "N").write_text(json.dumps({"pixel_noise": {"dn_per_electron": 0.1}}))
+    (tmp_path / "BAD").write_text(json.dumps({"dn_per_electron": 0.1}))
+    (tmp_path / "NEG").write_text(json.dumps({"pixel_noise": {"dn_per_electron": -0.1}}))
+    extra = [str(tmp_path / x) if x in ("N", "BAD", "NEG", "missing.json") else x for x in extra]
+    assert main(["process", str(tmp_path / "rec.npy"), "--calibration", str(tmp_path / "cal.json"),
+                 "--out", str(tmp_path / "r.csv"), *extra]) == 2
+    assert match in capsys.readouterr().err
+    assert not (tmp_path / "r.csv").exists()
+
+
+def test_calibrate_noise_refuses_frames_of_two_cameras_and_a_bad_exponent(tmp_path, capsys):
+    noload, pressed = _photon_stacks(gain=0.5, read=1.5, n=4)
+    np.save(tmp_path / "noload.npy", noload)
+    np.save(tmp_path / "pressed.npy", pressed[:, :40])
+    base = ["calibrate", "noise", "--noload", str(tmp_path / "noload.npy"), "--out", str(tmp_path / "n.json")]
+    assert main([*base, "--pressed", str(tmp_path / "pressed.npy")]) == 2
+    assert "they must be of one camera" in capsys.readouterr().err
+    np.save(tmp_path / "pressed.npy", pressed)
+    assert main([*base, "--pressed", str(tmp_path / "pressed.npy"), "--exponent", "steep"]) == 2
+    assert "--exponent must be a number or 'fit'" in capsys.readouterr().err
+    assert not (tmp_path / "n.json").exists()

@@ -1,4 +1,4 @@
-"""``optitact calibrate generate|fit|test``: synthetic calibration sets, fitted curves, held-out reports."""
+"""``optitact calibrate generate|fit|test|noise``: calibration sets, fitted curves, held-out reports, noise."""
 
 from __future__ import annotations
 
@@ -16,15 +16,15 @@ __all__ = ["add_parsers"]
 
 
 def add_parsers(sub) -> None:
-    """Add ``calibrate`` (with ``generate``, ``fit`` and ``test``) to the subcommands."""
+    """Add ``calibrate`` (with ``generate``, ``fit``, ``test`` and ``noise``) to the subcommands."""
     cal = sub.add_parser(
         "calibrate", help="synthetic calibration sets and fitted curves",
         description="Generate a synthetic calibration set (rendered frames with known forces, "
                     "resumable) and fit calibration curves to it or to frames of your own presses; "
-                    "test a calibration on held-out presses.")
+                    "test a calibration on held-out presses; measure the camera's pixel noise.")
     csub = cal.add_subparsers(dest="calibrate", required=True, metavar="STEP",
-                              help="generate a set, fit curves (to a set or to measured presses), or "
-                                   "test a calibration")
+                              help="generate a set, fit curves (to a set or to measured presses), "
+                                   "test a calibration, or measure the camera's noise")
     gen = csub.add_parser(
         "generate", parents=[spp_parent(64), seed_parent("seed of the whole set"), image_size_parent(),
                              variant_parent()],
@@ -128,6 +128,33 @@ def add_parsers(sub) -> None:
                            "parts growing with Fz and with the shear, per axis; kept for process --stderr), "
                            "e.g. on presses of your own sensor that the calibration was not fitted on")
     test.set_defaults(run=run_test)
+    noise = csub.add_parser(
+        "noise", help="measure the camera's pixel noise from no-load and pressed frames -> NOISE.json "
+                      "(for process --stderr --noise)",
+        description="Measure the camera's noise per pixel (the photon-transfer curve) from two stacks of "
+                    "frames at the same camera settings: NOLOAD frames of the unloaded sensor and PRESSED "
+                    "frames under one press that does not change between them (a weight resting on the "
+                    "sensor; 2 frames each at least, 20 or more for a steady estimate). Over the pixels "
+                    "the press lights, the pressed frames' variance beyond the no-load one grows with "
+                    "the mean signal: its slope is the conversion gain (grey levels per electron), its "
+                    "intercept the variance every lit pixel has beyond read and shot noise (rounding); "
+                    "the no-load frames' temporal noise is the read noise. Writes them as JSON, which "
+                    "process --stderr --noise reads to give each frame's noise in the forces' standard "
+                    "errors; prints the model as one JSON object on stdout.")
+    noise.add_argument("--noload", type=Path, nargs="+", required=True, metavar="FRAMES",
+                       help="frames of the unloaded sensor: image files, folders, .npy stacks or videos")
+    noise.add_argument("--pressed", type=Path, nargs="+", required=True, metavar="FRAMES",
+                       help="frames under one unchanging press, at the same camera settings")
+    noise.add_argument("--out", type=Path, required=True, metavar="NOISE.json", help="the noise file to write")
+    noise.add_argument("--min-signal", type=float, default=20.0, metavar="DN",
+                       help="only pixels whose mean signal (pressed minus no-load) is above this many grey "
+                            "levels enter the fit (default 20: below a few levels of noise, rounding bends "
+                            "the line)")
+    noise.add_argument("--exponent", default="1", metavar="E|fit",
+                       help="the power of the signal the noise variance grows with: 1 (default) is a "
+                            "camera's shot noise; 'fit' measures it too (noise that is not shot noise, "
+                            "e.g. a path tracer's)")
+    noise.set_defaults(run=run_noise)
 
 
 def _presses_arguments(p, *, required: bool = False) -> None:
@@ -334,4 +361,50 @@ def run_test(args) -> int:
         f"{100 * un['contact_rate']:.1f} %")
     for line in lines:
         print(f"optitact: {line}", file=sys.stderr)
+    return 0
+
+
+def _stack(paths: list[Path], option: str) -> np.ndarray:
+    """The frames of ``paths`` (files, folders, stacks, videos) as one (T, H, W) stack."""
+    from optitact.frames import expand_sources, iter_frames
+
+    frames = [(name, f) for name, f in iter_frames(expand_sources(paths))]
+    if not frames:
+        raise InputError(f"{option}: the frames hold no frame")
+    shape = frames[0][1].shape
+    for name, f in frames:
+        if f.shape != shape:
+            raise InputError(f"{option}: {name} is {f.shape[1]}x{f.shape[0]}, the first frame "
+                             f"{shape[1]}x{shape[0]}: the frames must be of one camera")
+    return np.stack([f for _, f in frames])
+
+
+def run_noise(args) -> int:
+    """``optitact calibrate noise``: the pixel noise model as JSON on stdout, written to --out."""
+    import json
+
+    from optitact.uncertainty import PixelNoise
+
+    if args.exponent == "fit":
+        exponent = "fit"
+    else:
+        try:
+            exponent = float(args.exponent)
+        except ValueError:
+            raise InputError(f"--exponent must be a number or 'fit', got {args.exponent!r}") from None
+    noload, pressed = _stack(args.noload, "--noload"), _stack(args.pressed, "--pressed")
+    if noload.shape[1:] != pressed.shape[1:]:
+        raise InputError(f"--noload frames are {noload.shape[2]}x{noload.shape[1]}, --pressed ones "
+                         f"{pressed.shape[2]}x{pressed.shape[1]}: they must be of one camera")
+    model = PixelNoise.estimate(noload, pressed, min_signal=args.min_signal, exponent=exponent)
+    signal = pressed.mean(axis=0, dtype=np.float64) - noload.mean(axis=0, dtype=np.float64)
+    measured = {"noload": [str(p) for p in args.noload], "pressed": [str(p) for p in args.pressed],
+                "noload_frames": len(noload), "pressed_frames": len(pressed),
+                "min_signal": args.min_signal, "exponent": args.exponent,
+                "pixels_fitted": int(np.count_nonzero(signal > args.min_signal)), "dtype": str(pressed.dtype)}
+    model.save(args.out, measured=measured)
+    print(f"optitact: {measured['pixels_fitted']} lit pixels: conversion gain {model.dn_per_electron:.5g} grey "
+          f"levels per electron (signal^{model.exponent:g}), lit variance {model.lit_variance:.3g}, read noise "
+          f"{model.read_sigma:.3g} grey levels; wrote {args.out}", file=sys.stderr)
+    print(json.dumps(model.to_dict()))
     return 0

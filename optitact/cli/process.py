@@ -90,6 +90,10 @@ def add_parsers(sub) -> None:
                       help="with --stderr: the camera's conversion gain (grey levels per electron; "
                            "optitact.uncertainty.PixelNoise.estimate measures it from a no-load and a "
                            "pressed stack; 0.0128 for the synthetic 8-bit CCD)")
+    proc.add_argument("--noise", type=Path, default=None, metavar="NOISE.json",
+                      help="with --stderr, instead of --dn-per-electron: the camera's measured noise model "
+                           "(conversion gain, read noise, the variance of lit pixels and how the noise grows "
+                           "with the signal), as optitact calibrate noise writes it")
     proc.add_argument("--scheduler", default=None, metavar="ADDRESS",
                       help="process the files on a Dask distributed cluster, one task per file "
                            "(scheduler address); the baseline comes from --baseline or the first "
@@ -209,20 +213,23 @@ def _baseline_note(args, baseline) -> tuple[int, str]:
 
 
 def _noise(args, cal):
-    """What ``--stderr``/``--dn-per-electron`` ask for: None, ``"model"`` or a PixelNoise."""
-    if args.dn_per_electron is not None and not args.stderr:
-        raise InputError("--dn-per-electron is for --stderr")
+    """What ``--stderr``/``--dn-per-electron``/``--noise`` ask for: None, ``"model"`` or a PixelNoise."""
+    for given, option in ((args.dn_per_electron, "--dn-per-electron"), (args.noise, "--noise")):
+        if given is not None and not args.stderr:
+            raise InputError(f"{option} is for --stderr")
+    if args.dn_per_electron is not None and args.noise is not None:
+        raise InputError("give the camera's noise as --dn-per-electron or as --noise, not both")
     if not args.stderr:
         return None
     if cal is None:
         raise InputError("--stderr gives the forces' standard errors: it needs --calibration")
-    if args.dn_per_electron is None:
-        print("optitact: --stderr without --dn-per-electron: the calibration's model error only (give the "
-              "camera's conversion gain to add each frame's noise)", file=sys.stderr)
+    if args.dn_per_electron is None and args.noise is None:
+        print("optitact: --stderr without --dn-per-electron or --noise: the calibration's model error only "
+              "(give the camera's noise to add each frame's)", file=sys.stderr)
         return "model"
     from optitact.uncertainty import PixelNoise
 
-    return PixelNoise(args.dn_per_electron)
+    return PixelNoise.load(args.noise) if args.noise is not None else PixelNoise(args.dn_per_electron)
 
 
 def run_process(args) -> int:
@@ -237,9 +244,9 @@ def run_process(args) -> int:
     _check_out(args.out, "--out")
     _check_out(args.plot, "--plot")
     if args.camera is not None:
-        if args.stderr or args.dn_per_electron is not None:
-            raise InputError("--stderr and --dn-per-electron work on recorded frames; a --camera stream "
-                             "writes forces without standard errors")
+        if args.stderr or args.dn_per_electron is not None or args.noise is not None:
+            raise InputError("--stderr, --dn-per-electron and --noise work on recorded frames; a --camera "
+                             "stream writes forces without standard errors")
         return _run_live(args)
     if args.policy is not None or args.view or args.max_frames is not None or args.seconds is not None:
         raise InputError("--policy, --view, --max-frames and --seconds are options of a --camera stream")
