@@ -453,6 +453,10 @@ def test_calibrate_noise_measures_the_conversion_gain_and_process_reads_the_file
     assert main([*common, "--dn-per-electron", "0.05", "--out", str(tmp_path / "b.csv")]) == 0
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
     assert main([*common, "--noise", str(tmp_path / "noise.json"), "--out", str(tmp_path / "c.csv")]) == 0
+    # the dark noise is the pipeline's own (its baseline is one frame here), not the file's read_sigma
+    PixelNoise(model.dn_per_electron, None, model.lit_variance, model.exponent).save(tmp_path / "d.json")
+    assert main([*common, "--noise", str(tmp_path / "d.json"), "--out", str(tmp_path / "d.csv")]) == 0
+    assert (tmp_path / "c.csv").read_bytes() == (tmp_path / "d.csv").read_bytes()
     a, c = _rows(tmp_path / "a.csv"), _rows(tmp_path / "c.csv")
     lit = [i for i, row in enumerate(a) if row["contact"] == "1"]
     assert lit and all(float(c[i]["fz_se"]) > float(a[i]["fz_se"]) for i in lit)  # ten times the gain: noisier

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from contextlib import closing, nullcontext
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,8 +93,9 @@ def add_parsers(sub) -> None:
                            "pressed stack; 0.0128 for the synthetic 8-bit CCD)")
     proc.add_argument("--noise", type=Path, default=None, metavar="NOISE.json",
                       help="with --stderr, instead of --dn-per-electron: the camera's measured noise model "
-                           "(conversion gain, read noise, the variance of lit pixels and how the noise grows "
-                           "with the signal), as optitact calibrate noise writes it")
+                           "(conversion gain, the variance of lit pixels and how the noise grows with the "
+                           "signal), as optitact calibrate noise writes it; the dark noise is the pipeline's "
+                           "own, measured on the baseline it subtracts")
     proc.add_argument("--scheduler", default=None, metavar="ADDRESS",
                       help="process the files on a Dask distributed cluster, one task per file "
                            "(scheduler address); the baseline comes from --baseline or the first "
@@ -229,7 +231,11 @@ def _noise(args, cal):
         return "model"
     from optitact.uncertainty import PixelNoise
 
-    return PixelNoise.load(args.noise) if args.noise is not None else PixelNoise(args.dn_per_electron)
+    if args.noise is None:
+        return PixelNoise(args.dn_per_electron)
+    # the dark part is the pipeline's own noise of frame - baseline, measured on the baseline it subtracts
+    # (one frame: twice the variance of a frame; the file's is that of a frame minus a long stack's mean)
+    return replace(PixelNoise.load(args.noise), read_sigma=None)
 
 
 def run_process(args) -> int:
