@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +37,9 @@ from .tables import (
     write_forces_csv,
 )
 
-__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "ReadingsWriter", "atomic_write",
-           "atomic_write_text", "atomic_write_png_figure", "json_fingerprint", "write_npy",
+__all__ = ["read_forces_csv", "write_forces_csv", "write_png", "write_json", "read_json_object",
+           "ReadingsWriter", "atomic_write", "atomic_write_text", "atomic_write_png_figure", "json_fingerprint",
+           "write_npy",
            "read_element_table", "csv_rows", "column_key",
            "partial_path", "per_frame_path", "csv_numbers", "sniff_delimiter", "add_to_message",
            "CSV_DELIMITERS"]
@@ -145,6 +146,28 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
         tmp.write_bytes(data.tobytes())
 
     atomic_write(path, write)
+
+
+def read_json_object(path: str | os.PathLike, keys: Sequence[str], *, what: str, writer: str) -> dict:
+    """The JSON object in ``path``, holding ``keys``; InputError naming the file otherwise.
+
+    ``what`` names the kind of file (``"setup"``), ``writer`` what writes one
+    (``"optitact register"``), for the messages.
+    """
+    from .errors import InputError
+
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such {what} file (write one with {writer})") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not a {what} JSON file ({exc})") from None
+    if not isinstance(doc, dict) or any(k not in doc for k in keys):
+        got = sorted(doc) if isinstance(doc, dict) else type(doc).__name__
+        want = " and ".join(repr(k) for k in keys)
+        raise InputError(f"{path}: expected a JSON object with {want} (as {writer} writes), got {got}")
+    return doc
 
 
 def write_json(path: str | os.PathLike, obj) -> None:

@@ -44,7 +44,6 @@ separate NumPy pass over the lit pixels, run only when errors are asked for.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -148,17 +147,9 @@ class PixelNoise:
     @classmethod
     def load(cls, path) -> PixelNoise:
         """A model written by :meth:`save`; InputError naming the file if it is not one."""
-        path = Path(path)
-        try:
-            doc = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(f"{path}: no such noise file (write one with optitact calibrate noise)") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{path}: not a noise JSON file ({exc})") from None
-        if not isinstance(doc, dict) or "pixel_noise" not in doc:
-            got = sorted(doc) if isinstance(doc, dict) else type(doc).__name__
-            raise InputError(f"{path}: expected a JSON object with 'pixel_noise' (as optitact calibrate noise "
-                             f"writes), got {got}")
+        from .io import read_json_object
+
+        doc = read_json_object(path, ("pixel_noise",), what="noise", writer="optitact calibrate noise")
         try:
             return cls.from_dict(doc["pixel_noise"])
         except (TypeError, ValueError) as exc:

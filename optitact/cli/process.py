@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from contextlib import closing, nullcontext
 from dataclasses import replace
@@ -127,16 +126,9 @@ def add_parsers(sub) -> None:
 
 def read_setup(path: Path) -> tuple[DomeSensor, Camera]:
     """The sensor and camera of a ``--setup`` JSON file; InputError naming the file otherwise."""
-    try:
-        setup = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such setup file (write one with optitact register)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a setup JSON file ({exc})") from None
-    if not isinstance(setup, dict) or "sensor" not in setup or "camera" not in setup:
-        got = sorted(setup) if isinstance(setup, dict) else type(setup).__name__
-        raise InputError(f"{path}: expected a JSON object with 'sensor' and 'camera' (as optitact register "
-                         f"writes), got {got}")
+    from optitact.io import read_json_object
+
+    setup = read_json_object(path, ("sensor", "camera"), what="setup", writer="optitact register")
     try:
         return DomeSensor.from_dict(setup["sensor"]), camera_from_dict(setup["camera"])
     except (TypeError, ValueError) as exc:
