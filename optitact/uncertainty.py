@@ -54,7 +54,8 @@ from ._validate import integer, positive
 from .errors import InputError, ShapeError
 from .steps import check_frames
 
-__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "coverage_spread", "reading_errors"]
+__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "coverage_spread", "error_ratio",
+           "reading_errors"]
 
 #: Half-width of the two-sided 90 % interval of a normal error, in standard errors.
 Z90 = 1.6448536269514722
@@ -411,8 +412,44 @@ def coverage(estimates, truth, stderr, *, z: float = Z90, where=None) -> np.ndar
     return inside[mask].mean(axis=0) if n else np.full(3, np.nan)
 
 
-def _inside(estimates, truth, stderr, z: float, where, stack: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Whether each true value is inside its interval (..., 3), and the samples counted (...).
+def error_ratio(estimates, truth, stderr, *, where=None) -> np.ndarray:
+    """The errors in standard errors, root mean square, per axis: ``sqrt(mean(((est - truth) / stderr)^2))``.
+
+    1 when the standard errors are right, whatever the errors' distribution;
+    above 1 they are too narrow, below too wide. :func:`coverage` of the 90 %
+    interval depends on the tails as well: errors with heavier tails than a
+    normal's put more of them inside 1.64 standard errors at the same ratio.
+
+    Parameters
+    ----------
+    estimates, truth, stderr, where
+        As for :func:`coverage`; the counted standard errors must be > 0.
+
+    Returns
+    -------
+    (3,) ndarray
+        Per axis; NaN when no sample is counted.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(1)
+    >>> se = np.full((20000, 3), 0.01)
+    >>> est = rng.normal(0.0, 2 * se)  # standard errors half the real ones
+    >>> [round(float(r), 1) for r in error_ratio(est, np.zeros_like(est), se)]
+    [2.0, 2.0, 2.0]
+    """
+    err, se, mask = _errors(estimates, truth, stderr, where)
+    if not mask.any():
+        return np.full(3, np.nan)
+    err, se = err[mask], se[mask]
+    if not np.all(se > 0):
+        raise InputError("stderr must be > 0 for every counted sample")
+    return np.sqrt(np.mean((err / se) ** 2, axis=0))
+
+
+def _errors(estimates, truth, stderr, where, stack: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(estimates - truth, stderr)`` (..., 3) and the samples counted (...), checked.
 
     ``stack``: the arrays must be (T, E, 3), frames by elements.
     """
@@ -424,7 +461,16 @@ def _inside(estimates, truth, stderr, z: float, where, stack: bool = False) -> t
     mask = np.ones(est.shape[:-1], bool) if where is None else np.asarray(where, bool)
     if mask.shape != est.shape[:-1]:
         raise ShapeError(f"where must have shape {est.shape[:-1]}, got {mask.shape}")
-    return np.abs(est - tru) <= positive(z, "z") * se, mask
+    return est - tru, se, mask
+
+
+def _inside(estimates, truth, stderr, z: float, where, stack: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each true value is inside its interval (..., 3), and the samples counted (...).
+
+    ``stack``: the arrays must be (T, E, 3), frames by elements.
+    """
+    err, se, mask = _errors(estimates, truth, stderr, where, stack)
+    return np.abs(err) <= positive(z, "z") * se, mask
 
 
 def coverage_spread(estimates, truth, stderr, *, z: float = Z90, where=None, resamples: int = 1000,

@@ -455,6 +455,11 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
                        for n, f in zip(loaded, out["families"], strict=True)) / sum(loaded)
             assert pooled["coverage_90"][ax] == pytest.approx(mean, abs=2e-4)  # the families' are rounded
             assert 0.0 <= pooled["coverage_90_sd"][ax] < 0.5
+            # the errors in standard errors: the pooled mean square is the families' samples-weighted one
+            square = sum(n * out["families"][f]["models"][model]["error_ratio"][ax] ** 2
+                         for n, f in zip(loaded, out["families"], strict=True)) / sum(loaded)
+            assert pooled["error_ratio"][ax] == pytest.approx(square**0.5, rel=1e-3)
+            assert pooled["error_ratio"][ax] > 0.0
     # the floor: the same loads rendered again with other seeds (path-traced: Monte Carlo noise, never 0)
     assert out["families"]["independent"]["floor"]["frames"] == 2
     assert out["families"]["single"]["floor"]["frames"] == 6  # ten times as many, at most the set's frames

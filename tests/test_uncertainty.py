@@ -230,6 +230,31 @@ def test_coverage_spread_is_that_of_the_frames():
         coverage_spread(independent, np.zeros_like(independent), se, where=np.ones(3, bool))
 
 
+
+def test_error_ratio_is_one_for_honest_errors_of_any_tails_where_coverage_is_not_ninety_percent():
+    """Laplace errors with the right standard errors: ratio 1, but 0.92 of them inside 1.645 of them."""
+    from optitact.uncertainty import error_ratio
+
+    rng = np.random.default_rng(6)
+    n = 200_000
+    se = rng.uniform(0.5, 2.0, (n, 3))
+    normal = rng.normal(0.0, se)
+    laplace = rng.laplace(0.0, se / np.sqrt(2.0))  # variance 2 b^2 = se^2
+    np.testing.assert_allclose(error_ratio(normal, np.zeros_like(normal), se), 1.0, atol=0.01)
+    np.testing.assert_allclose(error_ratio(laplace, np.zeros_like(laplace), se), 1.0, atol=0.01)
+    np.testing.assert_allclose(coverage(normal, np.zeros_like(normal), se), 0.9, atol=0.003)
+    inside = 1.0 - np.exp(-1.6448536269514722 * np.sqrt(2.0))  # P(|x| < 1.645 sd) of a Laplace
+    np.testing.assert_allclose(coverage(laplace, np.zeros_like(laplace), se), inside, atol=0.003)
+    assert inside > 0.9
+    # too narrow and too wide: the ratio says by how much
+    np.testing.assert_allclose(error_ratio(normal, np.zeros_like(normal), se / 2), 2.0, rtol=0.01)
+    where = np.zeros(n, bool)
+    assert np.isnan(error_ratio(normal, np.zeros_like(normal), se, where=where)).all()
+    with pytest.raises(InputError, match="> 0"):
+        error_ratio(normal, np.zeros_like(normal), np.zeros_like(se))
+    with pytest.raises(ShapeError, match="same shape"):
+        error_ratio(normal, np.zeros_like(normal), se[:5])
+
 # ----------------------------------------------------------------------------- where users see it
 def test_force_field_carries_the_errors_to_its_table_csv_and_plot(cal, tmp_path):
     pytest.importorskip("matplotlib")

@@ -12,7 +12,7 @@ import numpy as np
 from optitact._validate import integer
 from optitact.errors import InputError
 from optitact.camera import FisheyeCamera
-from optitact.uncertainty import coverage, coverage_spread
+from optitact.uncertainty import coverage, coverage_spread, error_ratio
 
 __all__ = ["SINGLE_FRAMES_FACTOR", "bench_accuracy"]
 
@@ -104,7 +104,9 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         :func:`optitact.uncertainty.reading_errors`, plus the model's error
         measured on the validation set; without one, the fit residuals), ``coverage_90_sd`` (its
         standard deviation over the frames drawn again with replacement:
-        :func:`optitact.uncertainty.coverage_spread`) and ``coverage_90_fit_residuals``
+        :func:`optitact.uncertainty.coverage_spread`), ``error_ratio`` (the errors in
+        those standard errors, root mean square: 1 when they are right, whatever the
+        tails; :func:`optitact.uncertainty.error_ratio`) and ``coverage_90_fit_residuals``
         (the same with the fit residuals as the model error), over every loaded
         element sample (``Fz > 0``) of the
         first family's held-out set; ``families``: the same per family;
@@ -113,7 +115,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         on those renders) and ``fx/fy/fz_beyond_floor_pct_fs`` (``sqrt(RMSE^2 -
         floor^2)``: the model's own error), and per family ``floor`` (how it
         was measured); ``coverage_90_pooled`` (with several families and frames): per model,
-        ``coverage_90`` and ``coverage_90_sd`` over every family's samples
+        ``coverage_90``, ``coverage_90_sd`` and ``error_ratio`` over every family's samples
         together, with their ``samples`` and ``frames``; and
         ``worst_family``: per model and axis, the family with the largest RMSE.
     """
@@ -220,6 +222,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                     if key == "coverage_90":  # its spread over the frames drawn: is a miss beyond luck?
                         scores["coverage_90_sd"] = _per_axis(coverage_spread(est, f_truth, se, where=loaded,
                                                                              seed=seed))
+                        scores["error_ratio"] = _per_axis(error_ratio(est, f_truth, se, where=loaded))
                         pooled.setdefault(model, []).append((est, f_truth, se, loaded))
             out["families"][fam]["models"][model] = scores
         if floor_frames:
@@ -245,6 +248,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
             out["coverage_90_pooled"][model] = {
                 "coverage_90": _per_axis(coverage(est, f_truth, se, where=loaded)),
                 "coverage_90_sd": _per_axis(coverage_spread(est, f_truth, se, where=loaded, seed=seed)),
+                "error_ratio": _per_axis(error_ratio(est, f_truth, se, where=loaded)),
                 "samples": int(loaded.sum()), "frames": int(len(loaded))}
     out["worst_family"] = {model: {ax: max(((fam, out["families"][fam]["models"][model][f"{ax}_rmse_pct_fs"])
                                             for fam in families), key=lambda kv: kv[1])
