@@ -19,7 +19,7 @@ from optitact._validate import check_type, integer
 from optitact.errors import InputError, OptitactWarning
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
-from optitact.uncertainty import coverage
+from optitact.uncertainty import coverage, error_ratio
 
 from .fit import Calibration
 from .gauge import check_presses, measure_presses
@@ -61,7 +61,10 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
         the fraction of pressed samples whose true force lies inside the
         calibration's 90 % interval (its model error, as ``process
         --stderr`` gives it; near 0.9 when the error bars are honest, and
-        :meth:`Calibration.validated` measures them from presses like these).
+        :meth:`Calibration.validated` measures them from presses like these);
+        ``error_ratio`` per axis: the errors in those standard errors, root
+        mean square (1 when they are right:
+        :func:`optitact.uncertainty.error_ratio`).
     """
     check_type(calibration, Calibration, "calibration")
     worst = integer(worst, "worst", minimum=0)
@@ -89,6 +92,7 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
     per_el = np.sqrt(np.bincount(e_of, weights=norm2, minlength=readings.n_elements) / np.maximum(counts, 1))
     order = [int(e) for e in np.argsort(-per_el, kind="stable") if counts[e]][:worst]
     free = ~pressed
+    se = calibration.stderr(readings, forces=est)
     return {
         "presses": int(pressed.sum()), "elements_pressed": int(np.count_nonzero(counts)),
         "full_scale_n": fs,
@@ -105,8 +109,8 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
                                                else np.zeros(3)).tolist(), strict=True)),
                      "contact_rate": float(readings.contact[free].mean()) if free.any() else 0.0},
         "clamped_rate": float(clamped[pressed].mean()),
-        "coverage_90": dict(zip(axes, coverage(est, f, calibration.stderr(readings, forces=est),
-                                               where=pressed).tolist(), strict=True)),
+        "coverage_90": dict(zip(axes, coverage(est, f, se, where=pressed).tolist(), strict=True)),
+        "error_ratio": dict(zip(axes, error_ratio(est, f, se, where=pressed).tolist(), strict=True)),
     }
 
 

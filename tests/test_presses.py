@@ -113,6 +113,12 @@ def test_scratch_fit_recovers_held_out_forces(stand_in):
     assert max(rep["rmse_pct_fs"].values()) < 3.0
     floor = press_report(stand_in["truth"], *stand_in["test"])
     assert max(floor["rmse_pct_fs"].values()) < 1.0
+    # the errors in the calibration's standard errors, as a direct sum over the pressed samples
+    readings, forces, pressed = stand_in["test"]
+    est = cal.forces(readings)[0]
+    z = ((est - forces) / cal.stderr(readings, forces=est))[pressed]
+    np.testing.assert_allclose([rep["error_ratio"][k] for k in ("fx", "fy", "fz")],
+                               np.sqrt(np.mean(z**2, axis=0)), rtol=1e-12)
 
 
 def test_refinement_with_5_presses_beats_scratch(stand_in):
@@ -333,8 +339,10 @@ def test_cli_fit_and_test_on_rendered_presses(tmp_path, capsys):
     assert again.error_model.samples == 3 * N_EL and again.fingerprint == cal.fingerprint
     assert main(["calibrate", "test", "--frames", str(held), "--forces", str(tmp_path / "held.csv"),
                  "--calibration", str(checked), "--json"]) == 0
-    cover = json.loads(capsys.readouterr().out)["coverage_90"]
+    rep = json.loads(capsys.readouterr().out)
+    cover, ratio = rep["coverage_90"], rep["error_ratio"]
     assert all(0.75 <= c <= 1.0 for c in cover.values()), cover  # in-sample: near 0.9 (123 samples)
+    assert all(0.7 <= r <= 1.3 for r in ratio.values()), ratio  # and the errors near one standard error
     # from scratch 9 presses per element fit too; the readable report goes to stderr
     assert main(["calibrate", "fit", "--frames", str(train), "--forces", str(tmp_path / "gauge.csv"),
                  "--out", str(tmp_path / "scratch.json")]) == 0
@@ -342,7 +350,7 @@ def test_cli_fit_and_test_on_rendered_presses(tmp_path, capsys):
                  "--calibration", str(tmp_path / "scratch.json")]) == 0
     err = capsys.readouterr().err
     assert "fitted coupled from scratch" in err and "ring 3: 48 presses" in err and "worst elements" in err
-    assert "90 % intervals hold" in err
+    assert "90 % intervals hold" in err and "errors in standard errors" in err
     # a gauge CSV naming a frame that is not there: a one-line error, exit 2
     (tmp_path / "bad.csv").write_text("frame,element,fx,fy,fz\npress_099.png,0,0,0,0.5\n")
     assert main(["calibrate", "fit", "--frames", str(train), "--forces", str(tmp_path / "bad.csv"),

@@ -354,7 +354,9 @@ def run_test(args) -> int:
     lines.append("worst elements: " + ", ".join(f"{w['element']} ({w['rms_error_n']:.4f} N)"
                                                  for w in rep["worst_elements"]))
     lines.append("90 % intervals hold " + ", ".join(f"{k.capitalize()} {v:.2f}" for k, v in
-                                                    rep["coverage_90"].items()) + " of the true forces")
+                                                    rep["coverage_90"].items()) + " of the true forces; "
+                 "errors in standard errors (RMS, 1 when they are right) "
+                 + ", ".join(f"{k.capitalize()} {v:.2f}" for k, v in rep["error_ratio"].items()))
     un = rep["unloaded"]
     lines.append(f"unloaded: {un['samples']} samples, RMSE " + ", ".join(
         f"{k.capitalize()} {v:.4f}" for k, v in un["rmse_n"].items()) + f" N, contact seen in "
