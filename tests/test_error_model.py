@@ -161,3 +161,66 @@ def test_fit_recovers_a_part_of_second_order_in_the_shear_for_fz():
     assert not ErrorModel.from_dict(old).shear2.any()
     with pytest.raises(InputError, match=">= 0"):
         ErrorModel(FLOOR, RELATIVE, 10, shear2=[0.0, 0.0, -0.1])
+
+
+def test_fit_recovers_a_scale_per_group_of_elements():
+    """sigma^2 = s^2 + k_g^2 (a^2 + (b Fz)^2): the groups' k come back (normalised to a mean square of 1 over
+    the samples), a group with too few samples takes the largest group's, and at() applies them per element."""
+    from optitact.calib.error_model import MIN_GROUP_SAMPLES
+
+    rng = np.random.default_rng(21)
+    n_el, n = 41, 60000
+    group = np.array([0] + [1] * 8 + [2] * 16 + [3] * 16)  # rings of the dome
+    k = np.array([[0.5, 0.4, 0.7], [0.5, 0.4, 0.7], [1.0, 1.0, 1.0], [1.4, 1.6, 1.2]])
+    element = rng.integers(0, n_el, n)
+    fz = rng.uniform(0.0, 1.0, n)
+    s = rng.uniform(0.0, 0.002, (n, 3))
+    model = np.sqrt(FLOOR**2 + (RELATIVE * fz[:, None]) ** 2) * k[group[element]]
+    res = rng.normal(size=(n, 3)) * np.sqrt(s**2 + model**2)
+    m = ErrorModel.fit(res, s, fz, element=element, element_group=group)
+    norm = np.sqrt(np.mean(k[group[element]] ** 2, axis=0))
+    np.testing.assert_allclose(m.element_scale, k[group] / norm, rtol=0.06)
+    np.testing.assert_allclose(m.floor_n * m.element_scale[0], FLOOR * k[0], rtol=0.15)
+    np.testing.assert_allclose(m.relative * m.element_scale[-1], RELATIVE * k[3], rtol=0.06, atol=0.001)
+    forces = np.zeros((2, n_el, 3))
+    forces[..., 2] = 0.5
+    np.testing.assert_allclose(m.at(forces), m.sigma(np.full((2, n_el), 0.5)) * m.element_scale, rtol=1e-12)
+    with pytest.raises(ShapeError, match=r"\(\.\.\., 41, 3\)"):
+        m.at(forces[:, :40])
+    back = ErrorModel.from_dict(m.to_dict())
+    np.testing.assert_array_equal(back.element_scale, m.element_scale)
+    old = {key: v for key, v in m.to_dict().items() if key != "element_scale"}  # a file from before
+    assert ErrorModel.from_dict(old).element_scale is None
+    # ring 0 with fewer samples than MIN_GROUP_SAMPLES: no scale of its own, the largest group's
+    few = (group[element] != 0) | (np.cumsum(group[element] == 0) < MIN_GROUP_SAMPLES)
+    m2 = ErrorModel.fit(res[few], s[few], fz[few], element=element[few], element_group=group)
+    ref = np.argmax(np.bincount(group[element[few]]))
+    np.testing.assert_array_equal(m2.element_scale[0], m2.element_scale[np.flatnonzero(group == ref)[0]])
+
+
+def test_element_groups_are_checked():
+    res, s, fz, _ = draw(np.random.default_rng(3), 100)
+    with pytest.raises(InputError, match="both element and element_group"):
+        ErrorModel.fit(res, s, fz, element=np.zeros(100, int))
+    with pytest.raises(ShapeError, match="index element_group"):
+        ErrorModel.fit(res, s, fz, element=np.full(100, 5), element_group=np.zeros(3, int))
+    with pytest.raises(ShapeError, match="integers"):
+        ErrorModel.fit(res, s, fz, element=np.zeros(100), element_group=np.zeros(3, int))
+    with pytest.raises(InputError, match="> 0"):
+        ErrorModel(FLOOR, RELATIVE, 10, element_scale=np.zeros((41, 3)))
+    with pytest.raises(ShapeError, match=r"\(E, 3\)"):
+        ErrorModel(FLOOR, RELATIVE, 10, element_scale=np.ones(41))
+
+
+def test_validated_measures_a_scale_per_ring(cal):
+    """A known law whose model error is twice as large on the outer ring: validated() finds it per ring."""
+    rng = np.random.default_rng(9)
+    r = readings(cal, rng, 150)
+    est = cal.forces(r)[0]
+    ring = cal.sensor.element_ring
+    k = np.where(ring == ring.max(), 2.0, 1.0)[:, None]
+    truth = est - rng.normal(size=est.shape) * np.sqrt(FLOOR**2 + (RELATIVE * est[..., 2:]) ** 2) * k
+    v = cal.validated(r, truth, source="rings").error_model
+    outer, inner = v.element_scale[ring == ring.max()], v.element_scale[ring != ring.max()]
+    np.testing.assert_allclose(outer.mean(axis=0) / inner.mean(axis=0), 2.0, rtol=0.1)
+    assert np.all(outer == outer[0]) and len(np.unique(v.element_scale[:, 0])) == len(np.unique(ring))

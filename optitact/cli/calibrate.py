@@ -96,10 +96,10 @@ def add_parsers(sub) -> None:
     fitp.add_argument("--validation", type=Path, default=None, metavar="VAL.zarr",
                       help="a finished set the fit does not see (other seeds; rendered like the frames the "
                            "calibration will read, e.g. --render-mode pixels): the calibration's own error is "
-                           "measured on it (a floor plus parts growing with Fz and with the shear, per axis) "
-                           "and kept in the file for the error bars (process --stderr); it holds the "
-                           "validation frames' noise too, so give --dn-per-electron to process only for "
-                           "noisier frames")
+                           "measured on it (a floor plus parts growing with Fz and with the shear, per axis, "
+                           "times a scale per ring of elements) and kept in the file for the error bars "
+                           "(process --stderr); it holds the validation frames' noise too, so give "
+                           "--dn-per-electron to process only for noisier frames")
     fitp.add_argument("--partial", action="store_true",
                       help="fit the finished frames of an incomplete set (a killed or running generate); "
                            "without it an incomplete set is refused with how many frames are done")
@@ -125,7 +125,8 @@ def add_parsers(sub) -> None:
     test.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
     test.add_argument("--validated", type=Path, default=None, metavar="OUT.json",
                       help="also write the calibration with its error measured on these presses (a floor plus "
-                           "parts growing with Fz and with the shear, per axis; kept for process --stderr), "
+                           "parts growing with Fz and with the shear, per axis, times a scale per ring of "
+                           "elements; kept for process --stderr), "
                            "e.g. on presses of your own sensor that the calibration was not fitted on")
     test.set_defaults(run=run_test)
     noise = csub.add_parser(
@@ -254,8 +255,18 @@ def _validated(cal, set_path, val_path):
     print(f"optitact: error measured on {m.samples} validation samples: floor Fx {m.floor_n[0]:.4f}, Fy "
           f"{m.floor_n[1]:.4f}, Fz {m.floor_n[2]:.4f} N, plus Fx {m.relative[0]:.4f}, Fy {m.relative[1]:.4f}, "
           f"Fz {m.relative[2]:.4f} N per N of Fz and Fx {m.shear[0]:.4f}, Fy {m.shear[1]:.4f}, "
-          f"Fz {m.shear[2]:.4f} N per N of shear, and Fz {m.shear2[2]:.4f} N per N² of shear", file=sys.stderr)
+          f"Fz {m.shear[2]:.4f} N per N of shear, and Fz {m.shear2[2]:.4f} N per N² of shear"
+          + _ring_scales(m, out.sensor.element_ring), file=sys.stderr)
     return out
+
+
+def _ring_scales(model, ring) -> str:
+    """``"; times Fx/Fy/Fz a/b/c on ring 0, ..."`` of an error model's scale per ring (or "")."""
+    if model.element_scale is None:
+        return ""
+    first = [int(np.flatnonzero(ring == r)[0]) for r in np.unique(ring)]
+    return "; times Fx/Fy/Fz " + ", ".join(
+        "/".join(f"{v:.2f}" for v in model.element_scale[e]) + f" on ring {r}" for r, e in enumerate(first))
 
 
 def _run_fit_presses(args) -> int:
