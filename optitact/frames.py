@@ -413,7 +413,7 @@ _quiet_saved = None
 
 
 def _luma_reader(f: Path, cap, cv2) -> tuple:
-    """``(capture, first frame)`` of a full-range planar-YUV video: read as its luma plane if that works.
+    """``(capture, first frame, luma)`` of a full-range planar-YUV video: read as its luma plane if that works.
 
     The luma plane of a JPEG-coded frame is its grey image: OpenCV's default
     read converts it to BGR, and ``cvtColor`` back to grey with the same
@@ -424,8 +424,8 @@ def _luma_reader(f: Path, cap, cv2) -> tuple:
     0 is read both ways: the luma read is kept when it has the frame's shape
     and is within one grey level of the converted frame everywhere;
     otherwise (another OpenCV build, another plane layout) the video is read
-    converted, as any other. ``cap`` is open with nothing read; the capture
-    not returned is released.
+    converted, as any other (``luma`` False). ``cap`` is open with nothing
+    read; the capture not returned is released.
     """
     raw = cv2.VideoCapture(str(f))
     try:
@@ -439,9 +439,9 @@ def _luma_reader(f: Path, cap, cv2) -> tuple:
     if (ok and ok_raw and luma.dtype == np.uint8 and luma.shape == grey.shape
             and grey.dtype == np.uint8 and np.abs(luma.astype(np.int16) - grey).max() <= 1):
         cap.release()
-        return raw, luma
+        return raw, luma, True
     raw.release()
-    return cap, img if ok else None
+    return cap, img if ok else None, False
 
 
 def check_codec(f: Path, cap) -> None:
@@ -482,7 +482,9 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
         elif pixels in _PLANAR_YUV and _codec_name(cap, cv2) in FULL_RANGE_CODECS:
             held.enter_context(_quiet_opencv(cv2))
-            cap, first = _luma_reader(f, cap, cv2)
+            cap, first, luma = _luma_reader(f, cap, cv2)
+            if not luma:  # read converted after all: OpenCV's warnings as they were
+                held.close()
         colour, name = None, f.name
         while True:
             if first is not None:

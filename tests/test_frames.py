@@ -363,9 +363,9 @@ def test_a_grey_mjpg_video_is_read_as_its_luma_plane_with_the_levels_of_a_colour
 
     path = _video(tmp_path / "m.avi", "MJPG", _frames())
     cap = cv2.VideoCapture(str(path))
-    used, first = _luma_reader(path, cap, cv2)
+    used, first, luma = _luma_reader(path, cap, cv2)
     try:
-        assert used.get(cv2.CAP_PROP_CONVERT_RGB) == 0  # the luma plane is what is read
+        assert luma and used.get(cv2.CAP_PROP_CONVERT_RGB) == 0  # the luma plane is what is read
     finally:
         used.release()
     truth = _bgr_read(path)
@@ -393,9 +393,9 @@ def test_a_video_whose_luma_read_differs_is_read_through_bgr(tmp_path):
 
     path = _colour_mjpg(tmp_path / "s.avi", saturated=True)
     cap = cv2.VideoCapture(str(path))
-    used, first = _luma_reader(path, cap, cv2)
+    used, first, luma = _luma_reader(path, cap, cv2)
     try:
-        assert used.get(cv2.CAP_PROP_CONVERT_RGB) == 1 and first.ndim == 3
+        assert not luma and used.get(cv2.CAP_PROP_CONVERT_RGB) == 1 and first.ndim == 3
     finally:
         used.release()
     truth = _bgr_read(path)
