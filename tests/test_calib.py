@@ -440,6 +440,12 @@ def test_bench_accuracy_families_with_a_validation_set(small_set, tmp_path):
             assert all(0.0 <= c <= 1.0 for c in scores["coverage_90"].values())
             assert set(scores["coverage_90_fit_residuals"]) == {"fx", "fy", "fz"}
             assert all(0.0 <= sd < 0.5 for sd in scores["coverage_90_sd"].values())
+            rings = scores["error_ratio_per_ring"]
+            assert [(r["ring"], r["samples"]) for r in rings] == [(r["ring"], r["samples"])
+                                                                 for r in scores["per_ring"]]
+            for ax in ("fx", "fy", "fz"):  # the rings' mean squares, weighted by their samples, are the whole's
+                square = sum(r["samples"] * r[ax] ** 2 for r in rings) / sum(r["samples"] for r in rings)
+                assert square**0.5 == pytest.approx(scores["error_ratio"][ax], rel=1e-3)
     assert out["worst_family"]["coupled"]["fz"][0] in ("independent", "single")
     sizes = {f: v["set"]["frames"] for f, v in out["families"].items()}
     assert sizes == {"independent": 3, "single": 6}

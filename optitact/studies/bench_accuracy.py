@@ -106,7 +106,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         standard deviation over the frames drawn again with replacement:
         :func:`optitact.uncertainty.coverage_spread`), ``error_ratio`` (the errors in
         those standard errors, root mean square: 1 when they are right, whatever the
-        tails; :func:`optitact.uncertainty.error_ratio`) and ``coverage_90_fit_residuals``
+        tails; :func:`optitact.uncertainty.error_ratio`), ``error_ratio_per_ring`` (the
+        same per ring of elements) and ``coverage_90_fit_residuals``
         (the same with the fit residuals as the model error), over every loaded
         element sample (``Fz > 0``) of the
         first family's held-out set; ``families``: the same per family;
@@ -223,6 +224,10 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
                         scores["coverage_90_sd"] = _per_axis(coverage_spread(est, f_truth, se, where=loaded,
                                                                              seed=seed))
                         scores["error_ratio"] = _per_axis(error_ratio(est, f_truth, se, where=loaded))
+                        scores["error_ratio_per_ring"] = [
+                            {"ring": int(r), "samples": int(np.sum(at)),
+                             **_per_axis(error_ratio(est, f_truth, se, where=at))}
+                            for r in np.unique(ring) if np.any(at := loaded & (ring == r))]
                         pooled.setdefault(model, []).append((est, f_truth, se, loaded))
             out["families"][fam]["models"][model] = scores
         if floor_frames:
