@@ -117,13 +117,25 @@ def test_g_is_increasing(analytic):
 
 
 def test_clamping_flags(analytic):
+    """Above g_max the normal curve goes on along its tangent up to EXTRAPOLATE beyond, then holds; flagged."""
+    from optitact.calib.fit import EXTRAPOLATE
+
     forces, r = analytic
     cal = Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="coupled")
-    big = Readings(r.G[0] * 0 + cal.g_max * 3, r.u[0], np.ones(N, bool), np.zeros(N, bool))
-    est, clamped = cal.forces(big)
+
+    def fz(G):
+        return cal.forces(Readings(G, r.u[0], np.ones(N, bool), np.zeros(N, bool)))
+
+    est, clamped = fz(cal.g_max * 3)
     assert clamped.all()
-    at_max = Readings(cal.g_max.copy(), r.u[0], np.ones(N, bool), np.zeros(N, bool))
-    np.testing.assert_allclose(est[:, 2], cal.forces(at_max)[0][:, 2], rtol=0, atol=1e-12)
+    held = fz(cal.g_max * (1.0 + EXTRAPOLATE))[0]
+    np.testing.assert_allclose(est, held, rtol=0, atol=1e-12)
+    # the tangent, from a one-sided difference just inside the fitted range
+    at_max, inside = fz(cal.g_max.copy())[0][:, 2], fz(cal.g_max * (1.0 - 1e-7))[0][:, 2]
+    slope = (at_max - inside) / (1e-7 * cal.g_max)
+    np.testing.assert_allclose(fz(cal.g_max * 1.1)[0][:, 2], at_max + slope * 0.1 * cal.g_max, rtol=1e-5)
+    assert np.all(slope > 0) and np.all(held[:, 2] > at_max)
+    assert not fz(cal.g_max.copy())[1].any()  # g_max itself is in range
     far = Readings(r.G[0], np.tile([[50.0, 0.0]], (N, 1)), r.contact[0], r.saturated[0])
     est, clamped = cal.forces(far)
     assert np.array_equal(clamped, r.contact[0])

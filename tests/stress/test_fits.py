@@ -9,6 +9,7 @@ import pytest
 from hypothesis import strategies as st
 
 from optitact.calib import Calibration
+from optitact.calib.fit import EXTRAPOLATE
 from optitact.errors import InputError, ShapeError
 from optitact.readings import Readings
 
@@ -164,7 +165,8 @@ def test_forces_beyond_the_fitted_range_are_clamped_and_flagged(clamp_cal, k_g, 
     est, clamped = cal.forces(Readings(G, u, G > 0, np.zeros_like(G, bool)))
     assert np.isfinite(est).all() and np.all(est[..., 2] >= 0)
     assert clamped[0, 0] == (G[0, 0] > 0 and (k_g > 1 or k_u > 1))
-    edge = Readings(np.minimum(G, cal.g_max), u * (1.0 if k_u <= 1 else 1.0 / k_u), G > 0,
+    # G holds a quarter beyond g_max (the curve's tangent up to there), u at u_max
+    edge = Readings(np.minimum(G, cal.g_max * (1.0 + EXTRAPOLATE)), u * (1.0 if k_u <= 1 else 1.0 / k_u), G > 0,
                     np.zeros_like(G, bool))
     np.testing.assert_allclose(est, cal.forces(edge)[0], rtol=1e-9, atol=1e-12)
 
