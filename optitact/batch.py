@@ -135,7 +135,8 @@ class ProcessedFrames:
     forces : (n_frames, E, 3) ndarray or None
         Element-local forces (N) with a calibration, when not written to ``out``.
     clamped : (n_frames, E) bool ndarray or None
-        Readings the calibration clamped to its fitted range (likewise).
+        Readings outside the calibration's fitted range (likewise; see
+        :meth:`optitact.calib.Calibration.forces`).
     last_frame : (H, W) ndarray
         The last frame (e.g. to plot its force field).
     last_readings : Readings

@@ -375,7 +375,8 @@ class ReadingsWriter:
     also ``fx, fy, fz`` (element-local, N), ``fx_global, fy_global,
     fz_global`` (the force on the element in the sensor frame, N; as
     :meth:`optitact.forces.ForceField.as_dict`) and ``clamped`` (the
-    calibration clamped the reading to its fitted range), and with
+    reading was outside the calibration's fitted range: see
+    :meth:`optitact.calib.Calibration.forces`), and with
     ``stderr=True`` after those ``fx_se, fy_se, fz_se`` (standard errors of
     the element-local forces, N: :meth:`optitact.calib.Calibration.stderr`);
     and a second table,
