@@ -14,9 +14,9 @@ per axis, as a floor plus parts that grow with the load,
 likelihood of held-out validation frames: see :meth:`ErrorModel.fit`; the
 last, second order in the shear, for Fz only: :data:`QUADRATIC_SHEAR`),
 times a scale per ring of elements and axis (the camera sees the rings at
-different angles, and the curves fit the outer ones worse: on the accuracy
-bench's validation frames the apex and first ring err at 0.4-0.5 of the
-mean, the outer ring at 1.2-1.6),
+different angles, and the curves fit the outer ones worse: fitted on the
+accuracy bench's validation frames, the shipped calibration's scales are
+0.47-0.83 on the apex and first ring and 1.14-1.37 on the outer ring),
 
 fitted by maximum likelihood to the residuals beside the noise the readings
 carried (their propagated standard errors), so that noise is not counted
@@ -52,7 +52,7 @@ _AXES = ("fx", "fy", "fz")
 #: it would move their shear part to the few most sheared elements and leave the clustered family
 #: (little shear) at 0.875-0.88, so they have none. Much of that second-order error was readings
 #: above the fitted range, then held flat at ``g_max``: along the curve's tangent
-#: (:data:`optitact.calib.fit.EXTRAPOLATE`) the fit gives the bench's joint model 0.09 N per N^2,
+#: (:data:`optitact.calib.curves.EXTRAPOLATE`) the fit gives the bench's joint model 0.09 N per N^2,
 #: was 0.18, and the shipped calibration 0 (its linear part took what is left).
 QUADRATIC_SHEAR = (False, False, True)
 
@@ -213,16 +213,11 @@ class ErrorModel:
         family), by five-fold cross-validation by frames: the shear part
         gave a negative log-likelihood of -23,316 against -23,230 without (a
         part in each element's neighbours' load contrast or mean load
-        changed it by under 2); the scale per ring -19,285 against -19,113
-        without (Fx / Fy / Fz 44 / 122 / 6 better) with the joint model's
-        noise beside the residuals, and -19,248 against -19,027 with the
-        noise in the model. A scale per element was better still for Fx and
-        Fy (by 37 and 45) but worse for Fz (by 106), and a sensor's own
-        presses give few samples per element: rings it is. (With readings
-        above the fitted range continued along the curve's tangent,
-        :data:`optitact.calib.fit.EXTRAPOLATE`: -19,396 against -19,208, Fx /
-        Fy / Fz 42 / 136 / 9 better; per element 44 and 39 better for Fx and
-        Fy, 31 worse for Fz.)
+        changed it by under 2); the scale per ring -19,396 against -19,208
+        without (Fx / Fy / Fz 42 / 136 / 9 better) with the joint model's
+        noise beside the residuals. A scale per element was better still for
+        Fx and Fy (by 44 and 39) but worse for Fz (by 31), and a sensor's own
+        presses give few samples per element: rings it is.
         """
         from scipy.optimize import minimize
 
@@ -315,7 +310,6 @@ class ErrorModel:
             raise InputError(f"calibration 'error_model' is malformed: {exc!r}") from None
 
 
-
 def _groups(element, element_group, n: int) -> tuple[np.ndarray, np.ndarray | None]:
     """Each sample's group (n,) (all 0 without groups) and the elements' groups (E,) (or None), checked."""
     if (element is None) != (element_group is None):
@@ -330,6 +324,7 @@ def _groups(element, element_group, n: int) -> tuple[np.ndarray, np.ndarray | No
         raise ShapeError(f"element must index element_group's {len(grp)} elements and groups be >= 0")
     _, grp = np.unique(grp, return_inverse=True)  # groups numbered 0 .. G-1
     return grp[el].astype(np.intp), grp.astype(np.intp)
+
 
 def validate(cal, readings, forces, errors=None, *, source: str = ""):
     """``cal`` (a :class:`~optitact.calib.Calibration`) with its error measured on independent readings.

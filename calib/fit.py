@@ -39,7 +39,8 @@ from optitact.sensor import DomeSensor
 from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
 from . import propagation
 from .crosstalk import CrossTalk, fit_crosstalk
-from .curves import G_TERMS, MODELS, fit_element, g_design, grey_for_force, zero_shear_centroid
+from .curves import EXTRAPOLATE as EXTRAPOLATE
+from .curves import G_TERMS, MODELS, fit_element, grey_for_force, normal_force, zero_shear_centroid
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
 from .document import PIPELINE_KEYS as PIPELINE_KEYS
 from .document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolved, fingerprint,
@@ -47,15 +48,6 @@ from .document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolv
 from .error_model import ErrorModel, validate
 
 __all__ = ["EXTRAPOLATE", "MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "fit"]
-
-#: Above an element's fitted range (``G > g_max``) its normal curve goes on along its tangent at
-#: ``g_max`` up to this fraction beyond it, and holds there (the reading is flagged ``clamped``).
-#: A loaded element whose neighbours are not (a single touch) reads brighter than any calibration
-#: frame that loaded it as hard with as much shear: held flat at ``g_max``, the accuracy bench's
-#: estimates of such readings (1.7 % of the held-out samples, all within a tenth of ``g_max``)
-#: erred by 24-34 mN (RMS, three families), along the tangent by 13-19 mN (the single family's Fz
-#: RMSE 0.88 -> 0.76 % FS; the uniform family's clamped readings, 4 mN off flat, 10 mN).
-EXTRAPOLATE = 0.25
 # MIN_RELATIVE_SPREAD, MAX_FILE_BYTES and PIPELINE_KEYS stay importable from here (re-exported above).
 
 
@@ -380,29 +372,18 @@ class Calibration:
 
     def _normal_curve(self, u):
         """``G -> Fz`` of every element on its own at shifts ``u`` (the joint inversion's inner step)."""
+        q = np.sum(self._clamped_shift(u)[0] / self.u_scale[:, None] * self.gu, axis=-1)
+        return lambda G: normal_force(self.g, self.g_scale, self.g_max, G, q)
+
+    def _clamped_shift(self, u) -> tuple[np.ndarray, np.ndarray]:
+        """``u`` (..., E, 2) clamped to the fitted range ``|u| <= u_max``, and where it was beyond it."""
         radius = np.hypot(u[..., 0], u[..., 1])
+        over = radius > self.u_max
+        # Divide only where the centroid is clamped (radius > u_max >= 0): elsewhere a subnormal radius
+        # would overflow the quotient that np.where then discards.
         scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
-                          where=radius > self.u_max)
-        q = np.sum(u * scale[..., None] / self.u_scale[:, None] * self.gu, axis=-1)
-
-        def normal(G):
-            s = np.minimum(G, self.g_max) / self.g_scale
-            g = self.g
-            return np.maximum(((g[:, 3] * s + g[:, 2]) * s + g[:, 1] + q) * s + g[:, 0]
-                              + self._beyond(G, q), 0.0)
-
-        return normal
-
-    def _beyond(self, G, q) -> np.ndarray:
-        """What the normal curve's tangent at ``g_max`` adds above it (0 within the fitted range).
-
-        ``q``: the centroid's term of the coupled model (``gu . u / u_scale``).
-        """
-        s_max = self.g_max / self.g_scale
-        over = (np.minimum(G, self.g_max * (1.0 + EXTRAPOLATE)) - self.g_max) / self.g_scale
-        g = self.g
-        slope = g[:, 1] + (2.0 * g[:, 2] + 3.0 * g[:, 3] * s_max) * s_max + q
-        return np.maximum(over, 0.0) * np.maximum(slope, 0.0)
+                          where=over)
+        return u * scale[..., None], over
 
     def _check(self, readings: Readings) -> None:
         """TypeError, ShapeError or InputError unless ``readings`` are finite Readings of this sensor."""
@@ -415,28 +396,16 @@ class Calibration:
 
     def _per_element(self, G, u) -> tuple[np.ndarray, np.ndarray]:
         """Forces (..., E, 3) and clamp flags of every element on its own (contact not applied)."""
-        readings_G = G
-        G = np.minimum(G, self.g_max)
-        radius = np.hypot(u[..., 0], u[..., 1])
-        over_u = radius > self.u_max
-        # Divide only where the centroid is clamped (radius > u_max >= 0): elsewhere a subnormal radius
-        # would overflow the quotient that np.where then discards.
-        scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
-                          where=over_u)
-        u = u * scale[..., None]
-        clamped = (readings_G > self.g_max) | over_u
-        s = G / self.g_scale
+        u, over_u = self._clamped_shift(u)
+        clamped = (G > self.g_max) | over_u
         t = u / self.u_scale[:, None]
-        q = np.sum(t * self.gu, axis=-1)
-        fz = np.einsum("...ek,ek->...e", g_design(s), self.g) + s * q + self._beyond(readings_G, q)
-        fz = np.maximum(fz, 0.0)
+        fz = normal_force(self.g, self.g_scale, self.g_max, G, np.sum(t * self.gu, axis=-1))
         if self.model == "ohka":
             shear = self.f[:, 0:1] * t + self.f[:, 1:2] * t**3
         else:
-            fzp = np.maximum(fz, 0.0)
             if self.u0 is not None:
-                u = u - zero_shear_centroid(self.u0, fzp)
-            shear = u * (fzp / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fzp)))[..., None]
+                u = u - zero_shear_centroid(self.u0, fz)
+            shear = u * (fz / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fz)))[..., None]
         return np.concatenate([shear, fz[..., None]], axis=-1), clamped
 
     # ------------------------------------------------------------------ uncertainty

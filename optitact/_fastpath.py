@@ -11,6 +11,7 @@ after a denoising filter (NumPy only).
 
 from __future__ import annotations
 
+import os
 import threading
 
 import numpy as np
@@ -20,14 +21,29 @@ from .readings import Readings
 from .steps import (G_MIN, _saturation_level, add_clipped_tail, denoise, filter_radius, readings_from_moments,
                     subtract_baseline)
 
-__all__ = ["BLOCKS_PER_THREAD", "MIN_FRAMES_PER_THREAD", "fast_compiled", "fast_numpy", "filtered_lit",
-           "kernel_args", "run_blocks", "thread_count"]
+__all__ = ["BLOCKS_PER_THREAD", "CHUNK_ENTRIES", "CHUNK_FRAMES", "MIN_FRAMES_PER_THREAD", "cores",
+           "fast_compiled", "fast_numpy", "fast_numpy_chunks", "filtered_lit", "kernel_args", "run_blocks",
+           "thread_count"]
 
 #: With ``threads=None`` a stack is split so that each thread gets at least this many frames.
 MIN_FRAMES_PER_THREAD = 8
+#: Most frames the fast method's NumPy kernel processes together (bounds its temporary memory).
+CHUNK_FRAMES = 64
+#: Region entries (frames x entries per frame) the NumPy kernel processes together: its
+#: temporaries stay a few MB, which the allocator reuses; larger ones are mapped afresh on
+#: every call, and the page faults of touching them cost more than the NumPy calls saved.
+CHUNK_ENTRIES = 2**18
 
 _pools: dict = {}  # workers -> ThreadPoolExecutor
 _pools_lock = threading.Lock()
+
+
+def cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def thread_count(requested: int | None, cores: int, n_frames: int) -> int:
@@ -191,6 +207,20 @@ def fast_numpy(pipe, stack: np.ndarray, single: bool = False) -> Readings:
     else:
         out = readings_from_moments(g_sum, m, saturated, pipe.floor, weight=w_sum)
     return add_clipped_tail(out, w_sum) if pipe.tail == "gaussian" else out
+
+
+def fast_numpy_chunks(pipe, stack: np.ndarray) -> Readings:
+    """:func:`fast_numpy` of a (T, H, W) stack in chunks shared out across the pipeline's threads.
+
+    A chunk holds at most :data:`CHUNK_ENTRIES` region entries and
+    :data:`CHUNK_FRAMES` frames; the readings come in frame order.
+    """
+    step = min(max(CHUNK_ENTRIES // max(len(pipe.region_weights.pixel), 1), 1), CHUNK_FRAMES)
+    chunks = [stack[i:i + step] for i in range(0, len(stack), step)]
+    parts = [r for part in run_blocks(lambda a, b: [fast_numpy(pipe, c) for c in chunks[a:b]],
+                                      len(chunks), min(pipe.threads_for(len(stack)), len(chunks)))
+             for r in part]
+    return parts[0] if len(parts) == 1 else Readings.stack(parts)
 
 
 def filtered_lit(pipe, flat: np.ndarray):

@@ -452,8 +452,7 @@ def check_codec(f: Path, cap) -> None:
     """
     import cv2
 
-    codec = _fourcc(cap, cv2)
-    name = codec.strip(" \0").lower()
+    codec, name = _fourcc(cap, cv2), _codec_name(cap, cv2)
     if name not in LOSSLESS_CODECS:
         what = (f"is lossy ({_LOSSY_NAMES[name]})" if name in _LOSSY_NAMES
                 else "is not known to be lossless")

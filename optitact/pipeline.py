@@ -35,12 +35,12 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 
 import numpy as np
 
 from . import _kernel
-from ._fastpath import fast_compiled, fast_numpy, run_blocks, thread_count
+from ._fastpath import CHUNK_ENTRIES, CHUNK_FRAMES, fast_compiled, fast_numpy, fast_numpy_chunks, thread_count
+from ._fastpath import cores as _cores
 from .baseline import impulse_floor, take_baseline
 from ._validate import integer, positive
 from .camera import Camera
@@ -116,20 +116,6 @@ METHODS = ("fast", "reference")
 TAILS = ("none", "gaussian")
 #: Options of :class:`Pipeline` that change how it runs, not its readings (:meth:`Pipeline.replace`).
 RUN_OPTIONS = frozenset({"kernel", "threads"})
-#: Most frames the fast method's NumPy kernel processes together (bounds its temporary memory).
-CHUNK_FRAMES = 64
-#: Region entries (frames x entries per frame) the NumPy kernel processes together: its
-#: temporaries stay a few MB, which the allocator reuses; larger ones are mapped afresh on
-#: every call, and the page faults of touching them cost more than the NumPy calls saved.
-CHUNK_ENTRIES = 2**18
-
-
-def _cores() -> int:
-    """CPU cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 # ---------------------------------------------------------------------------- the pipeline
@@ -527,12 +513,7 @@ class Pipeline:
         elif single:
             return fast_numpy(self, stack, single=True)
         else:
-            step = min(max(CHUNK_ENTRIES // max(len(self.region_weights.pixel), 1), 1), CHUNK_FRAMES)
-            chunks = [stack[i:i + step] for i in range(0, len(stack), step)]
-            parts = [r for part in run_blocks(lambda a, b: [fast_numpy(self, c) for c in chunks[a:b]],
-                                              len(chunks), min(self.threads_for(len(stack)), len(chunks)))
-                     for r in part]  # in frame order
-            out = parts[0] if len(parts) == 1 else Readings.stack(parts)
+            return fast_numpy_chunks(self, stack)
         return out[0] if single else out
 
     def threads_for(self, n_frames: int) -> int:

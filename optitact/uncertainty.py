@@ -45,7 +45,7 @@ separate NumPy pass over the lit pixels, run only when errors are asked for.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -122,11 +122,11 @@ class PixelNoise:
         """Build from :meth:`to_dict` output; InputError naming what is missing, unknown or out of range."""
         if not isinstance(d, dict):
             raise InputError(f"a pixel noise model must be a JSON object, got {type(d).__name__}")
-        fields = ("dn_per_electron", "read_sigma", "lit_variance", "exponent")
-        if "dn_per_electron" not in d or set(d) - set(fields):
+        names = tuple(f.name for f in fields(cls))
+        if "dn_per_electron" not in d or set(d) - set(names):
             raise InputError(f"a pixel noise model has dn_per_electron and optionally read_sigma, "
                              f"lit_variance and exponent, got {sorted(d)}")
-        for name in fields:
+        for name in names:
             value = d.get(name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
                 raise InputError(f"pixel noise {name} must be a number, got {value!r}")

@@ -251,7 +251,8 @@ def bench_pipeline(sizes=((320, 240), (640, 480), (1280, 960), (1920, 1440)), *,
     import platform
 
     from optitact.ccd import CCD
-    from optitact.pipeline import Pipeline, _cores
+    from optitact._fastpath import cores as _cores
+    from optitact.pipeline import Pipeline
     from optitact.studies.bench_render import render_cases
 
     n_frames = integer(n_frames, "n_frames", minimum=1)

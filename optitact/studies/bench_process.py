@@ -166,7 +166,7 @@ def bench_process(sizes=((640, 480), (1280, 960)), *, codecs=("MJPG",), frames: 
     from optitact import cli
     from optitact.calib import default_calibration
     from optitact.camera import FisheyeCamera
-    from optitact.pipeline import _cores
+    from optitact._fastpath import cores as _cores
 
     frames = integer(frames, "frames", minimum=NOLOAD_FRAMES + 1)
     repeats = integer(repeats, "repeats", minimum=1)
