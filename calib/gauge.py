@@ -9,8 +9,7 @@ and a pressed mask against readings. Fits and reports on presses are in
 The gauge CSV
 -------------
 One row per frame and pressed element, columns found by name (any order, any
-case, units in brackets such as ``Fz (N)``, a byte-order mark, ``,`` ``;`` or
-tab as :func:`optitact.io.csv_rows` reads them)::
+case, ``,`` ``;`` or tab as :func:`optitact.io.sniff_delimiter` tells them)::
 
     frame,element,fx,fy,fz[,frame_of_reference]
 
@@ -18,7 +17,7 @@ tab as :func:`optitact.io.csv_rows` reads them)::
 ``source`` column (``press_001.png``, or ``clip.avi#12`` for frame 12 of a
 video or ``.npy`` stack) or a 0-based index into all the frames in the order
 they are read (baseline frames included). ``element`` is the element index.
-``fx, fy, fz`` are in N, element-local (``z`` the outward normal, ``fz > 0``
+``fx, fy, fz`` are element-local (``z`` the outward normal, ``fz > 0``
 pressing) unless ``frame_of_reference`` reads ``global`` (the sensor frame:
 converted with :func:`optitact.forces.local_from_global`). The elements of a
 listed frame that have no row are unloaded, and so is every element of a
@@ -29,12 +28,37 @@ sees contact anyway (a zero-force sample for the fit, and in the report's
 known force; the usual protocol presses one element at a time, normal then
 inclined, and frames pressing several elements at once (mixed loads) work
 the same way.
+
+Units. A force column's unit is written in brackets after its name, ``Fz
+(mN)`` or ``Fz [mN]``, one of :data:`GAUGE_UNITS` in any case (``N``, ``mN``,
+``kN``, ``gf``, ``kgf``, ``lbf``, ``ozf``), and converted to N; a column
+without one is in N. Any other unit is refused by name (``g``, ``kg``,
+``lb`` and ``oz`` too: masses, where a gauge's gram-force is ``gf``), and so
+is a unit glued to the name (``fz_mN``: write ``Fz (mN)``).
+
+Forces a press cannot have are refused, naming the line, frame and element:
+a component beyond :data:`MAX_GAUGE_FORCE_N` (100 N on one element: a unit
+left out of the header is the usual cause), a negative local ``Fz`` (a pull,
+no contact), a shear with ``Fz = 0`` (nothing holds it), and a file whose
+every ``Fz`` is 0 (nothing to fit). Two columns of one name (``fz`` and
+``Fz (N)``) are refused as ambiguous.
+
+Encoding. UTF-8 (with or without a byte-order mark, as Excel's "CSV UTF-8"
+writes it) or UTF-16 with a byte-order mark (Excel's "Unicode text"); a file
+that is not valid UTF-8 and holds no NUL character is read as Windows-1252
+(Excel's "CSV" on Western Windows; Latin-1 where that fails), whose digits,
+signs and ASCII names read the same. Anything else (UTF-16 without a
+byte-order mark, a binary file) is refused, and so is a line longer than
+:data:`MAX_LINE_CHARS` characters.
 """
 
 from __future__ import annotations
 
+import codecs
+import csv
 import math
 import os
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,14 +67,27 @@ import numpy as np
 
 from optitact._validate import check_type
 from optitact.errors import InputError, ShapeError
-from optitact.io import column_key, csv_numbers, csv_rows
+from optitact.io import column_key, csv_numbers, sniff_delimiter
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
-__all__ = ["Presses", "check_presses", "measure_presses", "read_presses"]
+__all__ = ["GAUGE_UNITS", "MAX_GAUGE_FORCE_N", "MAX_LINE_CHARS", "Presses", "check_presses", "measure_presses",
+           "read_presses"]
 
 _REFERENCES = ("local", "global")
 _COLUMNS = ("frame", "element", "fx", "fy", "fz")
+_FORCES = ("fx", "fy", "fz")
+
+#: The units a force column may name in brackets (any case), in N per unit.
+GAUGE_UNITS = {"N": 1.0, "mN": 1e-3, "kN": 1e3, "gf": 9.80665e-3, "kgf": 9.80665, "lbf": 4.4482216152605,
+               "ozf": 4.4482216152605 / 16}
+#: The largest force component (N) a gauge may give for one element (larger: a unit left out, a typo).
+MAX_GAUGE_FORCE_N = 100.0
+#: The longest line (characters) a gauge CSV may have (Python's csv module refuses longer fields).
+MAX_LINE_CHARS = 131072
+# masses a gauge's display may show, and the force unit meant
+_MASSES = {"g": "gf", "kg": "kgf", "lb": "lbf", "lbs": "lbf", "oz": "ozf"}
+_UNIT = re.compile(r"[\(\[]\s*([^\)\]]*?)\s*[\)\]]\s*$")
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,6 +134,99 @@ def _frame_index(cell: str, sources: Sequence[str], by_name: dict, path, lineno:
                      f"0-based index 0..{len(sources) - 1}")
 
 
+def _decode(path: Path) -> str:
+    """The text of a gauge CSV: UTF-8 (BOM or not), UTF-16 with a BOM, else Windows-1252 (or Latin-1)."""
+    data = path.read_bytes()
+    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        encoding = "utf-16"
+    else:
+        encoding = "utf-8-sig"
+    try:
+        text = data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        if encoding == "utf-16" or b"\x00" in data:
+            raise InputError(f"{path}: not a text file in UTF-8 or UTF-16 ({encoding} fails at byte "
+                             f"{exc.start}); save the gauge CSV as UTF-8 (Excel: 'CSV UTF-8')") from None
+        try:  # Excel's "CSV" on Western Windows; its digits, signs and ASCII names read the same
+            text = data.decode("cp1252")
+        except UnicodeDecodeError:
+            text = data.decode("latin-1")
+    if "\x00" in text:
+        raise InputError(f"{path}: holds NUL characters: UTF-16 without a byte-order mark, or not a text file; "
+                         f"save the gauge CSV as UTF-8 (Excel: 'CSV UTF-8') or UTF-16 with a byte-order mark")
+    return text
+
+
+def _gauge_rows(path: Path) -> list[tuple[int, list[str]]]:
+    """Non-blank, non-comment rows of the gauge CSV as ``(line number, stripped cells)``."""
+    lines = _decode(path).splitlines()
+    for lineno, line in enumerate(lines, start=1):
+        if len(line) > MAX_LINE_CHARS:
+            raise InputError(f"{path}, line {lineno}: {len(line)} characters long, more than the "
+                             f"{MAX_LINE_CHARS} a gauge CSV line may have (a frame, an element and three "
+                             f"forces); is this the gauge's CSV?")
+    content = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
+    delimiter = sniff_delimiter(content, path) if content else ","
+    reader = csv.reader(lines, delimiter=delimiter)
+    rows: list[tuple[int, list[str]]] = []
+    try:
+        for row in reader:
+            cells = [c.strip() for c in row]
+            if any(cells) and not cells[0].startswith("#"):
+                rows.append((reader.line_num, cells))
+    except csv.Error as exc:
+        raise InputError(f"{path}, line {reader.line_num + 1}: not a CSV row ({exc})") from None
+    return rows
+
+
+def _unit_factor(cell: str, path, lineno: int, col: int) -> float:
+    """N per unit of a force column's header cell (``Fz (mN)`` -> 1e-3; no unit: N)."""
+    m = _UNIT.search(cell)
+    if m is None:
+        return 1.0
+    unit = m.group(1)
+    accepted = ", ".join(GAUGE_UNITS)
+    if unit == "MN":
+        raise InputError(f"{path}, line {lineno}, column {col} ({cell!r}): unit 'MN' is meganewton; write mN "
+                         f"for millinewton (accepted: {accepted})")
+    known = {u.lower(): u for u in GAUGE_UNITS} | {"newton": "N", "newtons": "N"}
+    if unit.lower() in known:
+        return GAUGE_UNITS[known[unit.lower()]]
+    hint = ""
+    if unit.lower() in _MASSES:
+        force = _MASSES[unit.lower()]
+        hint = f"; {unit!r} is a mass: if the gauge reads {force} (its force), write {force}"
+    raise InputError(f"{path}, line {lineno}, column {col} ({cell!r}): unknown force unit {unit!r}; the "
+                     f"accepted units are {accepted} (any case, in brackets after the name: 'Fz (mN)'){hint}")
+
+
+def _glued_unit(key: str) -> str | None:
+    """``'fz_mn'`` -> ``'fz'`` (a force column with its unit glued to the name), else None."""
+    m = re.fullmatch(r"(f[xyz])[\s_/-]+(\w+)", key)
+    known = {u.lower() for u in GAUGE_UNITS} | set(_MASSES)
+    return m.group(1) if m is not None and m.group(2) in known else None
+
+
+def _impossible(fx: float, fy: float, fz: float) -> str | None:
+    """Why element-local forces (N) cannot be a press, or None: a pull, or a shear with no normal force."""
+    if fz < 0:
+        return f"Fz = {fz:.6g} N is a pull (no contact), not a press: Fz > 0 presses"
+    if fz == 0 and (fx != 0 or fy != 0):
+        return (f"a shear of ({fx:.6g}, {fy:.6g}) N with Fz = 0: nothing holds a shear without a normal force "
+                f"(a press needs Fz > 0)")
+    return None
+
+
+def _too_large(values) -> str | None:
+    """Why force components (N) are beyond :data:`MAX_GAUGE_FORCE_N`, or None."""
+    big = [f"{name} = {v:.6g} N" for name, v in zip(("Fx", "Fy", "Fz"), values, strict=True)
+           if abs(v) > MAX_GAUGE_FORCE_N]
+    if not big:
+        return None
+    return (f"{', '.join(big)} is beyond the {MAX_GAUGE_FORCE_N:g} N a gauge can put on one element of "
+            f"a tactile sensor; if the gauge reads another unit, name it in the header (e.g. 'Fz (mN)')")
+
+
 def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSensor) -> tuple[np.ndarray,
                                                                                                np.ndarray]:
     r"""Read a force gauge's CSV: element-local forces per frame and element.
@@ -104,7 +234,7 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     Parameters
     ----------
     path : path-like
-        The CSV (see the module docstring for its columns).
+        The CSV (see the module docstring for its columns, units and encodings).
     sources : sequence of str
         The frames' sources in order (:attr:`optitact.batch.ProcessedFrames.sources`).
     sensor : DomeSensor
@@ -112,7 +242,7 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     Returns
     -------
     forces : (T, E, 3) float64 ndarray
-        Element-local forces (N); 0 where there is no row.
+        Element-local forces (N, converted from the header's units); 0 where there is no row.
     pressed : (T, E) bool ndarray
         Where there is a row.
 
@@ -124,15 +254,20 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
         No header naming ``frame, element, fx, fy, fz``, a row of the wrong width, no rows.
     InputError
         A frame or element that does not exist, a force that is not a finite
-        number (NaN), a frame listed twice for one element, an unknown
-        ``frame_of_reference`` (each message gives the line).
+        number, a frame listed twice for one element, an unknown
+        ``frame_of_reference`` (each message gives the line); an unknown
+        unit, two columns of one name; a force a press cannot have (beyond
+        :data:`MAX_GAUGE_FORCE_N`, a negative local Fz, a shear without Fz;
+        the message names the line, frame and element), Fz = 0 on every row;
+        a file that is not UTF-8 or UTF-16 text, a line longer than
+        :data:`MAX_LINE_CHARS`.
 
     Examples
     --------
     >>> import pathlib, tempfile
     >>> from optitact import DomeSensor
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "gauge.csv"
-    >>> _ = p.write_text("Frame;Element;Fx (N);Fy (N);Fz (N)\npress_1.png;3;0.1;0;0.5\n1;0;0;0;0.2\n")
+    >>> _ = p.write_text("Frame;Element;Fx (mN);Fy (mN);Fz (mN)\npress_1.png;3;100;0;500\n1;0;0;0;200\n")
     >>> f, pressed = read_presses(p, ["noload.png", "press_1.png"], DomeSensor.default())
     >>> f.shape, f[1, 3].tolist(), f[1, 0].tolist(), int(pressed.sum())
     ((2, 41, 3), [0.1, 0.0, 0.5], [0.0, 0.0, 0.2], 2)
@@ -144,7 +279,7 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"force gauge file not found: {path}")
-    rows = csv_rows(path)
+    rows = _gauge_rows(path)
     if not rows:
         raise ShapeError(f"{path}: empty; expected a header {', '.join(_COLUMNS)} and one row per frame and "
                          f"pressed element")
@@ -152,10 +287,22 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     header = [column_key(c) for c in first]
     missing = [c for c in _COLUMNS if c not in header]
     if missing:
+        glued = [(c, _glued_unit(k)) for c, k in zip(first, header, strict=True) if _glued_unit(k) in missing]
+        hint = "".join(f"; write {c!r} as '{name.capitalize()} (unit)', the unit in brackets"
+                       for c, name in glued[:1])
         raise ShapeError(f"{path}, line {header_line}: no column {', '.join(missing)} in the header {first}; "
                          f"expected the columns {', '.join(_COLUMNS)} (any order, units like 'Fz (N)'), "
-                         f"optionally frame_of_reference (local or global)")
-    col = {k: header.index(k) for k in (*_COLUMNS, "frame_of_reference") if k in header}
+                         f"optionally frame_of_reference (local or global){hint}")
+    col = {}
+    for k in (*_COLUMNS, "frame_of_reference"):
+        at = [j for j, h in enumerate(header) if h == k]
+        if len(at) > 1:
+            raise InputError(f"{path}, line {header_line}: columns {at[0] + 1} ({first[at[0]]!r}) and "
+                             f"{at[1] + 1} ({first[at[1]]!r}) both name {k}: which to use is ambiguous; "
+                             f"keep one")
+        if at:
+            col[k] = at[0]
+    unit = {k: _unit_factor(first[col[k]], path, header_line, col[k] + 1) for k in _FORCES}
     n_t, n_el = len(sources), sensor.n_elements
     by_name: dict[str, list[int]] = {}
     for i, s in enumerate(sources):
@@ -183,8 +330,12 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
             raise InputError(f"{path}, line {lineno}: frame {sources[t]!r} is listed twice for element {e} "
                              f"(also on line {line_of[t, e]}); one row per frame and element")
         line_of[t, e] = lineno
-        forces[t, e] = [csv_numbers([cells[col[k]]], path, lineno, first_column=col[k] + 1)[0]
-                        for k in ("fx", "fy", "fz")]
+        value = [csv_numbers([cells[col[k]]], path, lineno, first_column=col[k] + 1)[0] * unit[k]
+                 for k in _FORCES]
+        why = _too_large(value)
+        if why is not None:
+            raise InputError(f"{path}, line {lineno}: frame {sources[t]!r}, element {e}: {why}")
+        forces[t, e] = value
         pressed[t, e] = True
         if "frame_of_reference" in col:
             ref = cells[col["frame_of_reference"]].strip().lower() or "local"
@@ -196,6 +347,14 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     for t in np.flatnonzero(is_global.any(axis=1)):
         local = local_from_global(sensor, forces[t])
         forces[t, is_global[t]] = local[is_global[t]]
+    for (t, e), lineno in line_of.items():
+        why = _impossible(*forces[t, e])
+        if why is not None:
+            seen = " (in the element's frame, converted from global)" if is_global[t, e] else ""
+            raise InputError(f"{path}, line {lineno}: frame {sources[t]!r}, element {e}: {why}{seen}")
+    if not np.any(forces[pressed][:, 2] > 0):
+        raise InputError(f"{path}: Fz is 0 on every row: no press to fit or test from; give each press's "
+                         f"normal force (in N, or name the unit in the header: 'Fz (mN)')")
     return forces, pressed
 
 
@@ -241,7 +400,19 @@ def measure_presses(frames: Sequence[str | os.PathLike], forces: str | os.PathLi
 
 
 def check_presses(readings: Readings, forces, pressed) -> tuple[np.ndarray, np.ndarray]:
-    """Forces ``(T, E, 3)`` and the pressed mask ``(T, E)`` checked against stack readings."""
+    """Forces ``(T, E, 3)`` and the pressed mask ``(T, E)`` checked against stack readings.
+
+    Raises
+    ------
+    TypeError
+        ``readings`` are not stack Readings.
+    ShapeError
+        ``forces`` or ``pressed`` do not match the readings.
+    InputError
+        A force that is not finite or beyond :data:`MAX_GAUGE_FORCE_N`, or a
+        pressed sample a press cannot be (a negative Fz, a shear with Fz = 0);
+        the message names the frame (its index) and the element.
+    """
     if not isinstance(readings, Readings) or not readings.is_stack:
         raise TypeError("readings must be stack Readings (T, E) from Pipeline.process(stack)")
     f = np.asarray(forces, dtype=np.float64)
@@ -253,4 +424,12 @@ def check_presses(readings: Readings, forces, pressed) -> tuple[np.ndarray, np.n
     pressed = np.any(f != 0, axis=-1) if pressed is None else np.asarray(pressed, dtype=bool)
     if pressed.shape != shape:
         raise ShapeError(f"pressed must have shape {shape}, got {pressed.shape}")
+    big = np.argwhere(np.any(np.abs(f) > MAX_GAUGE_FORCE_N, axis=-1))
+    if big.size:
+        t, e = big[0]
+        raise InputError(f"forces[{t}, {e}] (frame {t}, element {e}): {_too_large(f[t, e])}")
+    bad = np.argwhere(pressed & ((f[..., 2] < 0) | ((f[..., 2] == 0) & np.any(f[..., :2] != 0, axis=-1))))
+    if bad.size:
+        t, e = bad[0]
+        raise InputError(f"forces[{t}, {e}] (frame {t}, element {e}): {_impossible(*f[t, e])}")
     return f, pressed

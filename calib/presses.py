@@ -11,7 +11,8 @@ module of its own:
   :func:`fit_presses` fit a :class:`~optitact.calib.Calibration`, from scratch
   (``MIN_PRESSES_SCRATCH`` presses per element) or by refining a starting
   calibration (the shipped synthetic one, ``start="default"``;
-  ``MIN_PRESSES_REFINE``);
+  ``MIN_PRESSES_REFINE``), keeping per element each group of parameters only
+  where it beats the start on held-out presses;
 * :mod:`optitact.calib.held_out` -- :func:`evaluate_calibration` and
   :func:`press_report` give the held-out report; :func:`press_curve`
   measures how the held-out error falls with the number of presses per

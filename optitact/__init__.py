@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names below loa
     from .readings import Readings
     from .register import register
     from .sensor import DomeSensor
+    from .setup import Setup, read_setup
 
 __version__ = "0.1.0"
 
@@ -42,12 +43,14 @@ __all__ = [
     "Readings",
     "RenderError",
     "ShapeError",
+    "Setup",
     "cone_loads",
     "camera_from_dict",
     "contact_patches",
     "dome_from_pixel",
     "pixel_from_dome",
     "read_opencv_calibration",
+    "read_setup",
     "register",
 ]
 
@@ -65,6 +68,7 @@ _HOMES = {
     "readings": ("Readings",),
     "register": ("register",),  # the function (scipy.optimize is imported when it runs)
     "sensor": ("DomeSensor",),
+    "setup": ("Setup", "read_setup"),
 }
 _HOME = {name: module for module, names in _HOMES.items() for name in names}
 

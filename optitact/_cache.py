@@ -20,7 +20,7 @@ import numpy as np
 from .io import atomic_write, json_fingerprint, write_npy
 
 __all__ = ["CACHE_KEEP", "PRECOMPUTE_FORMAT", "cache_dir", "cached_arrays", "cached_render",
-           "precompute_cache_enabled"]
+           "precompute_cache_enabled", "render_cache_path"]
 
 #: Format of :func:`cached_arrays`' files; part of every key, bumped when what is stored changes.
 PRECOMPUTE_FORMAT = 1
@@ -49,17 +49,13 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
     (the rest of the image is 0). Written atomically
     (temporary file, then rename), so a killed run leaves no half file.
     """
-    from . import __version__
     from .render import RenderSettings, render, select_variant
 
     used = select_variant(variant)[1]
     settings = RenderSettings() if settings is None else settings
     f = np.ascontiguousarray(forces, dtype=np.float64)
-    name = json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "spp": spp,
-                             "seed": seed, "settings": asdict(settings), "variant": used,
-                             "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest(),
-                             "spot_pixels_only": bool(spot_pixels_only)}, 24)
-    path = cache_dir() / "renders" / f"{name}.npy"
+    path = render_cache_path(sensor, f, camera=camera, spp=spp, seed=seed, variant=used,
+                             spot_pixels_only=spot_pixels_only, settings=settings)
     if path.is_file():
         return np.load(path)
     if spot_pixels_only:
@@ -71,6 +67,25 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
         img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings)
     write_npy(path, img)
     return img
+
+
+def render_cache_path(sensor, forces, *, camera, spp: int, seed: int, variant: str | None = None,
+                      spot_pixels_only: bool = False, settings=None) -> Path:
+    """The file :func:`cached_render` keeps the render of these inputs in (there once rendered).
+
+    Lets a caller tell which renders are cached before it starts them (to announce only the others).
+    """
+    from . import __version__
+    from .render import RenderSettings, select_variant
+
+    used = select_variant(variant)[1]
+    settings = RenderSettings() if settings is None else settings
+    f = np.ascontiguousarray(forces, dtype=np.float64)
+    name = json_fingerprint({"sensor": sensor.to_dict(), "camera": camera.to_dict(), "spp": spp,
+                             "seed": seed, "settings": asdict(settings), "variant": used,
+                             "version": __version__, "forces": hashlib.sha256(f.tobytes()).hexdigest(),
+                             "spot_pixels_only": bool(spot_pixels_only)}, 24)
+    return cache_dir() / "renders" / f"{name}.npy"
 
 
 def precompute_cache_enabled() -> bool:

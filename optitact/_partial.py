@@ -1,14 +1,21 @@
-"""Output files written beside their name as ``.NAME.PID.partial`` and renamed only when complete.
+"""Output files written whole or named partial: ``.NAME.PID.partial`` files renamed when complete, and a lock.
 
 :class:`~optitact.tables.ReadingsWriter` writes its CSV (:class:`PartialCSV`)
 and Parquet (:class:`PartialParquet`, the ``columnar`` extra) tables through
-them, so a killed run never leaves half a table under the real name.
+them, so a killed run never leaves half a table under the real name. A CSV
+is appended to in whole blocks of rows: a write that fails part-way (a full
+disk) is cut back, so the file always ends on the last whole frame.
+:class:`OutputLock` keeps two runs from writing one output at once, and
+:func:`remove_stray_partials` removes what killed runs of an output left.
 """
 
 from __future__ import annotations
 
 import os
+import sys
+import time
 from collections.abc import Sequence
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
@@ -16,23 +23,205 @@ import numpy as np
 from ._optional import require
 from .errors import InputError
 
-__all__ = ["PartialCSV", "PartialParquet"]
+__all__ = ["OutputLock", "PartialCSV", "PartialParquet", "pid_alive", "remove_stray_partials"]
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine (True where that cannot be told, e.g. on Windows)."""
+    if pid == os.getpid():
+        return True
+    if sys.platform == "win32" or pid <= 0:  # os.kill(pid, 0) would end the process on Windows
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process (EPERM), or no way to tell
+        return True
+    return True
+
+
+def _tmp_name(path: Path, pid: int) -> str:
+    return f".{path.name}.{pid}.partial"
+
+
+def remove_stray_partials(path: Path) -> list[Path]:
+    """Remove the ``.NAME.PID.partial`` files beside ``path`` of runs that were killed (``PID`` not alive).
+
+    Returns the files removed. Those of live processes (and of this one) are kept.
+    """
+    prefix, suffix = f".{path.name}.", ".partial"
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        pid = entry.name[len(prefix):-len(suffix)]
+        if (entry.name.startswith(prefix) and entry.name.endswith(suffix) and pid.isdigit()
+                and not pid_alive(int(pid))):
+            with suppress(OSError):  # gone already, or not ours to remove: nothing is lost by keeping it
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+    return removed
+
+
+def _read_pid(fd: int) -> int | None:
+    """The pid a lock file holds (None if it holds none yet)."""
+    for _ in range(20):  # the holder writes its pid just after taking the lock
+        with suppress(OSError):
+            os.lseek(fd, 0, os.SEEK_SET)
+            text = os.read(fd, 32).decode("ascii", "replace").strip()
+            if text.isdigit():
+                return int(text)
+        time.sleep(0.01)
+    return None
+
+
+class OutputLock:
+    """An exclusive lock on an output's name while a run writes it: the file ``.NAME.lock`` beside it.
+
+    The lock file holds the pid of the run that holds it. The lock is the
+    operating system's (``flock``; on Windows a locked byte), released when
+    the process ends however it ends, so the file a killed run leaves is taken
+    over by the next run. :meth:`release` removes it.
+
+    Parameters
+    ----------
+    path : Path
+        The output file (it need not exist).
+
+    Raises
+    ------
+    InputError
+        Another process holds the lock: the message names its pid.
+    OSError
+        The lock file cannot be made (a read-only folder): the message names it.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        #: The lock file.
+        self.file = self.path.with_name(f".{self.path.name}.lock")
+        self._fd: int | None = None
+        for _ in range(100):  # a holder may remove the file between our open and our lock: open it again
+            try:
+                fd = os.open(self.file, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise _named(exc, f"cannot lock {self.path} for writing ({self.file})") from None
+            try:
+                if not _lock(fd):
+                    pid = _read_pid(fd)
+                    raise InputError(
+                        f"{self.path} is being written by another run (pid {pid if pid else 'unknown'}; "
+                        f"its lock is {self.file}): wait for it to end, or write to another file")
+                try:
+                    same = os.path.samestat(os.fstat(fd), os.stat(self.file))
+                except FileNotFoundError:
+                    same = False
+                if same:
+                    os.ftruncate(fd, 0)
+                    os.lseek(fd, 0, os.SEEK_SET)
+                    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+                    self._fd, fd = fd, None
+                    return
+            finally:
+                if fd is not None:
+                    os.close(fd)
+        raise InputError(f"{self.path}: could not lock it for writing ({self.file} keeps changing)")
+
+    def release(self) -> None:
+        """Remove the lock file and let go of the lock (again: nothing)."""
+        if self._fd is None:
+            return
+        with suppress(OSError):  # the lock is released with the descriptor either way
+            if os.path.samestat(os.fstat(self._fd), os.stat(self.file)):
+                os.unlink(self.file)
+        os.close(self._fd)
+        self._fd = None
+
+
+def _lock(fd: int) -> bool:
+    """Take the lock of the open file ``fd`` without waiting; False when another process holds it."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: lock a byte far past the pid, so that the pid stays readable
+        import msvcrt
+
+        os.lseek(fd, 1 << 20, os.SEEK_SET)
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except OSError:
+            return False
+        return True
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError as exc:  # a file system without locks (ENOLCK, EOPNOTSUPP): write as before, and say so
+        import warnings
+
+        from .errors import OptitactWarning
+
+        warnings.warn(f"cannot lock the output against other runs here ({exc.strerror}): do not start two "
+                      f"runs writing the same file", OptitactWarning, stacklevel=4)
+    return True
+
+
+def _named(exc: OSError, what: str) -> OSError:
+    """``exc`` as an OSError whose message starts with ``what`` (the file), with the same errno."""
+    named = OSError(f"{what}: {exc.strerror or exc}")
+    named.errno = exc.errno
+    return named
 
 
 class PartialCSV:
-    """A CSV file written beside ``path`` as ``.NAME.PID.partial``, renamed when complete."""
+    """A CSV file written beside ``path`` as ``.NAME.PID.partial`` (or ``tmp``), renamed when complete.
+
+    Each :meth:`write` appends its text whole or not at all: a write that
+    fails part-way (a full disk, a file-size limit) is cut back to where it
+    began, and the OSError names the file.
+    """
 
     def __init__(self, path: Path, header: Sequence[str], tmp: Path | None = None) -> None:
         self.path = path
-        self.tmp = tmp if tmp is not None else path.with_name(f".{path.name}.{os.getpid()}.partial")
-        self.fh = self.tmp.open("w", newline="", encoding="utf-8")
-        self.fh.write(",".join(header) + "\r\n")
+        self.tmp = tmp if tmp is not None else path.with_name(_tmp_name(path, os.getpid()))
+        #: The name messages give: the visible file rows go to, else the table being written.
+        self.shown = self.path if tmp is None else tmp
+        #: Bytes written whole so far.
+        self.size = 0
+        try:
+            self.fh = self.tmp.open("wb", buffering=0)
+        except OSError as exc:
+            raise _named(exc, f"writing {self.shown}") from None
+        try:
+            self.write(",".join(header) + "\r\n")
+        except OSError:
+            self.fh.close()
+            self.tmp.unlink(missing_ok=True)
+            raise
 
     def write(self, text: str) -> None:
-        self.fh.write(text)
+        """Append ``text`` whole; on a failure cut the file back to where it was and raise naming it."""
+        data = memoryview(text.encode("utf-8"))
+        done = 0
+        try:
+            while done < len(data):
+                done += self.fh.write(data[done:])
+        except OSError as exc:
+            self.truncate(self.size)
+            raise _named(exc, f"writing {self.shown}") from None
+        self.size += len(data)
+
+    def truncate(self, size: int) -> None:
+        """Cut the file back to ``size`` bytes (the end of an earlier :meth:`write`)."""
+        with suppress(OSError):  # shrinking a file needs no space; if it fails, the error raised says why
+            self.fh.truncate(size)
+            self.fh.seek(size)
+            self.size = size
 
     def flush(self) -> None:
-        self.fh.flush()
+        """Nothing to do: every write goes straight to the operating system."""
 
     def finish(self, to: Path | None) -> None:
         """Close, then rename to ``to`` (None: delete)."""
@@ -46,7 +235,8 @@ class PartialCSV:
 
 #: Arrow types of the columns of the Parquet tables (the rest are float64).
 _PARQUET_TYPES = {"frame": "int64", "source": "string", "element": "int64", "contact": "bool_",
-                  "saturated": "bool_", "clamped": "bool_", "n_contact": "int64", "n_clamped": "int64"}
+                  "saturated": "bool_", "clamped": "bool_", "n_contact": "int64", "n_clamped": "int64",
+                  "wall_time": "string"}
 
 
 class PartialParquet:
@@ -61,7 +251,7 @@ class PartialParquet:
         pa = require("pyarrow", purpose="Parquet tables (.parquet)")
         pq = require("pyarrow.parquet", purpose="Parquet tables (.parquet)")
         self.path, self.row_group = path, row_group
-        self.tmp = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        self.tmp = path.with_name(_tmp_name(path, os.getpid()))
         self._pa = pa
         self.schema = pa.schema([(name, getattr(pa, _PARQUET_TYPES.get(name, "float64"))()) for name in header])
         self._writer = pq.ParquetWriter(self.tmp, self.schema)
@@ -101,8 +291,11 @@ class PartialParquet:
     def flush(self) -> None:
         """Write the gathered rows as a row group."""
         if self._rows:
-            self._writer.write_table(self._pa.Table.from_batches(self._batches, self.schema),
-                                     row_group_size=self._rows)
+            try:
+                self._writer.write_table(self._pa.Table.from_batches(self._batches, self.schema),
+                                         row_group_size=self._rows)
+            except OSError as exc:
+                raise _named(exc, f"writing {self.path}") from None
             self._batches, self._rows = [], 0
 
     def finish(self, to: Path | None) -> None:

@@ -39,7 +39,7 @@ from . import _kernel
 from ._validate import integer
 from .errors import InputError, OptitactError
 from .frames import ReadAhead, count_frames, expand_sources, iter_frames, read_ahead, read_ahead_depth
-from .tables import ReadingsWriter
+from .tables import ReadingsWriter, refuse_overwriting_inputs, table_files
 from .pipeline import Pipeline, take_baseline
 from .readings import Readings
 from .steps import check_frames
@@ -328,8 +328,10 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         The files appear when the run is complete (a temporary file is
         renamed), so an existing ``out`` is never replaced by a partial table;
         if the run fails, the rows of the frames done so far are kept as
-        ``NAME.partial.csv`` and the error says so (see
-        :class:`~optitact.tables.ReadingsWriter`).
+        ``NAME.partial.csv``, ending on a whole frame, and the error says so;
+        a second run writing the same ``out`` meanwhile is refused, and a
+        complete run removes the hidden partial files that killed runs of
+        ``out`` left (see :class:`~optitact.tables.ReadingsWriter`).
     batch : int
         Frames processed together (default 32); the results do not depend on it.
         Here (without a scheduler) a background thread decodes the next frames
@@ -368,7 +370,9 @@ def process_files(sources: Sequence[str | os.PathLike], *, pipeline: Pipeline | 
         or kind or with NaN (the message names its file, and its index within
         the file counted from 0 for a stack or video: ``rec.npy, frame 50``),
         fewer frames than ``baseline_frames`` or none after them, ``out``
-        naming a folder.
+        naming a folder, ``out`` (or its per-frame or partial table) being
+        one of the input files, another run writing ``out`` (the message
+        names its process id).
     TypeError
         Neither a pipeline nor a calibration, or objects of the wrong kind.
     """
@@ -392,6 +396,9 @@ def _process_files(sources, pipeline, calibration, baseline, baseline_frames, ou
         raise InputError(f"out: {out} is a folder; expected the name of the CSV file to write "
                          f"(e.g. {Path(out) / 'readings.csv'})")
     files = expand_sources(sources)
+    if out is not None:
+        refuse_overwriting_inputs({f"out's {k}" if k != "table" else "out": v
+                                   for k, v in table_files(out, forces=calibration is not None).items()}, files)
     t0 = time.perf_counter()
     if baseline is not None:
         pipe, n_base = pipe.with_baseline(baseline), 0

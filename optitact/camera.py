@@ -25,6 +25,7 @@ right-handed camera frame seen from below, not mirrored).
 
 from __future__ import annotations
 
+import importlib
 import math
 import numbers
 import os
@@ -87,6 +88,30 @@ def check_frame_size(width: int, height: int, source: str = "frame") -> None:
 
 #: Camera models by the ``model`` key of their :meth:`Camera.to_dict` (filled by the classes).
 CAMERA_MODELS: dict[str, type] = {}
+
+#: Where each camera model the package ships is defined: :meth:`Camera.from_dict` imports the
+#: module of a model not yet registered, so that any process reads any shipped model's
+#: parameters whatever it imported before (a setup file names ``opencv_fisheye`` in a process
+#: that never imported :mod:`optitact.camera_models`).
+SHIPPED_CAMERA_MODELS: dict[str, str] = {"equidistant": "optitact.camera",
+                                         "pinhole": "optitact.camera_models",
+                                         "opencv_fisheye": "optitact.camera_models"}
+
+
+def camera_model(name: str) -> type:
+    """The camera class of a ``model`` name, importing the shipped model's module where needed.
+
+    Raises
+    ------
+    InputError
+        For a name that is neither registered nor shipped (listing the valid ones).
+    """
+    if name not in CAMERA_MODELS and isinstance(name, str) and name in SHIPPED_CAMERA_MODELS:
+        importlib.import_module(SHIPPED_CAMERA_MODELS[name])
+    if name not in CAMERA_MODELS:
+        valid = sorted(set(CAMERA_MODELS) | set(SHIPPED_CAMERA_MODELS))
+        raise InputError(f"camera parameters: unknown model {name!r}; valid: {valid}")
+    return CAMERA_MODELS[name]
 
 
 class Camera(ABC):
@@ -156,10 +181,11 @@ class Camera(ABC):
         if not isinstance(d, Mapping):
             raise TypeError(f"camera parameters must be a dict, got {type(d).__name__}")
         model = d.get("model", "equidistant" if cls is Camera else cls.model)
-        if model not in CAMERA_MODELS:
-            raise InputError(f"camera parameters: unknown model {model!r}; valid: {sorted(CAMERA_MODELS)}")
+        if not isinstance(model, str):
+            raise InputError(f"camera parameters: model must be a name (str), got {model!r}")
+        model_cls = camera_model(model)
         if cls is Camera:
-            return CAMERA_MODELS[model].from_dict(d)
+            return model_cls.from_dict(d)
         if model != cls.model:
             raise InputError(f"camera parameters: model {model!r} is not a {cls.__name__} ({cls.model!r}); "
                              f"read it with optitact.camera.camera_from_dict")

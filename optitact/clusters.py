@@ -34,8 +34,17 @@ def nearest_spacing(cen: np.ndarray) -> np.ndarray:
     return d.min(axis=1)
 
 
-def element_clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera: Camera) -> dict:
-    """Spots linked into element candidates on the dome (nominal camera); their centroids, energies, radii."""
+def element_clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera: Camera, *,
+                     sigma: float | None = None) -> dict:
+    """Spots linked into element candidates on the dome (nominal camera); their centroids, energies, radii.
+
+    Returns a dict of equal-length arrays: ``centroid`` (n, 2) px, ``energy``, ``rms`` (ring radius, px),
+    ``n_spots`` and ``centroid_se`` (px): the standard error of one centroid coordinate that the difference
+    image's noise (``sigma`` per pixel, independent; default ``spots.noise_sigma``) gives, ``sigma *
+    sqrt(sum(d_i^2) / 2) / E`` over the pixels that weigh into it (``d_i`` their distance from the
+    centroid, ``E`` their summed value); for the plain mean of ``K`` cone spots, the root-sum-square of the
+    spots' own over ``K``.
+    """
     import cv2
     from scipy.sparse.csgraph import connected_components
 
@@ -52,7 +61,8 @@ def element_clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera:
     groups = [np.flatnonzero((comp == c) & ok) for c in np.unique(comp[ok])] if m else []
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     h, w = diff.shape
-    out = {"centroid": [], "energy": [], "rms": [], "n_spots": []}
+    out = {"centroid": [], "energy": [], "rms": [], "n_spots": [], "centroid_se": []}
+    sigma = float(spots.noise_sigma if sigma is None else sigma)
     for g in groups:
         mask = np.isin(spots.labels, g + 1)
         rr, cc = np.nonzero(mask)
@@ -65,19 +75,35 @@ def element_clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera:
         gr, gc = np.mgrid[r0:r1, c0:c1]
         cen = np.array([(wts * gr).sum(), (wts * gc).sum()]) / e
         wp = np.maximum(wts, 0.0)
-        rms = math.sqrt(((gr - cen[0]) ** 2 + (gc - cen[1]) ** 2)[sub] @ wp[sub] / max(wp.sum(), 1e-300))
+        d2 = (gr - cen[0]) ** 2 + (gc - cen[1]) ** 2
+        rms = math.sqrt(d2[sub] @ wp[sub] / max(wp.sum(), 1e-300))
+        se = sigma * math.sqrt(float(np.sum(d2[sub])) / 2.0) / e
         if g.size == sensor.n_cones:
             # Every cone a spot of its own: the plain mean of the spots' centroids is what the model
             # predicts (the mean of the cones' images, as registration predicts them), whatever the
             # cones' brightness (the rim light makes those nearer the rim brighter, which pulls the
             # energy-weighted centroid of a ring merged at low resolution outwards, by up to half a pixel).
             cen = spots.centroid[g].mean(axis=0)
+            lab = spots.labels[r0:r1, c0:c1]
+            se = sigma * math.sqrt(sum(_spot_se(spots, int(i), lab, (r0, c0)) ** 2 for i in g)) / g.size
         out["centroid"].append(cen)
         out["energy"].append(e)
         out["rms"].append(rms)
         out["n_spots"].append(g.size)
+        out["centroid_se"].append(se)
     return {"centroid": np.array(out["centroid"]).reshape(-1, 2), "energy": np.array(out["energy"]),
-            "rms": np.array(out["rms"]), "n_spots": np.array(out["n_spots"], dtype=np.int64)}
+            "rms": np.array(out["rms"]), "n_spots": np.array(out["n_spots"], dtype=np.int64),
+            "centroid_se": np.array(out["centroid_se"])}
+
+
+def _spot_se(spots: Spots, i: int, labels: np.ndarray, origin: tuple[int, int]) -> float:
+    """Spot ``i``'s centroid standard error (px, one coordinate) per unit of pixel noise.
+
+    ``labels`` is a window of ``spots.labels`` whose top-left pixel is ``origin``.
+    """
+    rr, cc = np.nonzero(labels == i + 1)
+    d2 = (rr + origin[0] - spots.centroid[i, 0]) ** 2 + (cc + origin[1] - spots.centroid[i, 1]) ** 2
+    return math.sqrt(float(np.sum(d2)) / 2.0) / max(float(spots.energy[i]), 1e-300)
 
 
 def vote_shift(clusters: list[np.ndarray], pred: np.ndarray, gate: np.ndarray, search: float) -> np.ndarray:

@@ -45,11 +45,22 @@ def reference_g(grid: np.ndarray, fz: np.ndarray, force: float) -> np.ndarray:
 def element_gains(sensor, camera, base, frames, obs_f, obs_e, *, press_force, calibration) -> dict:
     """Per-element gains from equal presses: measured G over the reference calibration's G at the press force.
 
-    Returns ``gain`` (N,), ``se`` (N,) (NaN where unknown), ``force`` (the press force, given or the one that
-    makes the median gain 1), ``unfitted`` (seen elements whose presses could not be read against the
-    reference: no contact, saturated, outside its range).
+    Returns ``gain`` (N,), ``se`` (N,) (NaN where unknown), ``presses`` (N,) (the presses each gain is the
+    median of), ``force`` (the press force, given or the one that makes the median gain 1), ``unfitted``
+    (seen elements whose presses could not be read against the reference: no contact, saturated, outside
+    its range).
+
+    Notes
+    -----
+    A gain's standard error is the larger of two estimates over its ``n`` presses, each ``gain * s /
+    sqrt(n)``: with ``s`` the relative noise of one press's G that the frames' dark noise gives through
+    the pipeline's region sums (:func:`optitact.uncertainty.reading_errors` with the pipeline's own
+    noise, no shot noise: the fewer pixels an element's light covers, the larger it is), and, where some
+    element was pressed more than once, with ``s`` the spread of repeated presses (of log G, pooled over
+    the elements), which includes the shot noise and the presses' own variation.
     """
     from .pipeline import Pipeline
+    from .uncertainty import PixelNoise, reading_errors
 
     n = sensor.n_elements
     if len(calibration.g) != n:
@@ -57,22 +68,28 @@ def element_gains(sensor, camera, base, frames, obs_f, obs_e, *, press_force, ca
                          f"sensor {n}; give a calibration of a sensor with the same element layout")
     options = {k: v for k, v in calibration.pipeline_options.items() if k != "method"}
     pipe = Pipeline(sensor, camera, baseline=base, readings_bits=calibration.intensity.bits, **options)
-    readings = pipe.process(np.stack(frames))
+    stack = np.stack(frames)
+    readings = pipe.process(stack)
     g_meas = readings.G[obs_f, obs_e]
     ok = readings.contact[obs_f, obs_e] & ~readings.saturated[obs_f, obs_e] & (g_meas > 0)
+    rel_noise = np.full(len(obs_e), np.nan)
+    if pipe.filter == "none":  # a filtered image's pixel noise is correlated: not modelled
+        g_se = reading_errors(pipe, stack, PixelNoise(0.0), readings=readings).G_se[obs_f, obs_e]
+        rel_noise = np.where(ok, g_se / np.where(g_meas > 0, g_meas, 1.0), np.nan)
     grid, fz = reference_curve(calibration)
     ref_gain = calibration.sensor.gains
 
-    def gains_at(force):
+    def gains_at(force, noise=False):
         g_ref = reference_g(grid, fz, force)[obs_e]
         ratio = np.where(ok & np.isfinite(g_ref), g_meas / np.where(g_ref > 0, g_ref, np.nan), np.nan)
-        per = {}
+        per, rel = {}, {}
         for e in np.unique(obs_e):
-            r = ratio[obs_e == e]
-            r = r[np.isfinite(r)]
-            if r.size:
-                per[int(e)] = r * ref_gain[e]
-        return per
+            mine = obs_e == e
+            good = np.isfinite(ratio[mine])
+            if good.any():
+                per[int(e)] = ratio[mine][good] * ref_gain[e]
+                rel[int(e)] = rel_noise[mine][good]
+        return (per, rel) if noise else per
 
     if press_force is None:  # the force at which the median element's gain is 1
         top = float(np.min(fz[-1, np.unique(obs_e)]))
@@ -87,7 +104,7 @@ def element_gains(sensor, camera, base, frames, obs_f, obs_e, *, press_force, ca
         force = math.sqrt(lo * hi)
     else:
         force = float(press_force)
-    per = gains_at(force)
+    per, rel = gains_at(force, noise=True)
     if not per:
         raise GainsError(
             f"no element's gain could be measured: the pressed elements show no contact in the pipeline or "
@@ -96,13 +113,16 @@ def element_gains(sensor, camera, base, frames, obs_f, obs_e, *, press_force, ca
     if press_force is None:  # exact normalisation: the median over the seen elements is 1
         med = float(np.median([np.median(v) for v in per.values()]))
         per = {e: v / med for e, v in per.items()}
-    gain, se = sensor.gains.copy(), np.full(n, np.nan)
+    gain, se, presses = sensor.gains.copy(), np.full(n, np.nan), np.zeros(n, np.int64)
     logs = [np.log(v) - np.mean(np.log(v)) for v in per.values() if v.size > 1]
     dof = sum(v.size - 1 for v in per.values() if v.size > 1)
     s_rel = math.sqrt(sum(float(np.sum(d ** 2)) for d in logs) / dof) if dof else math.nan
     for e, v in per.items():
         gain[e] = float(np.median(v))
-        se[e] = gain[e] * s_rel / math.sqrt(v.size)
+        s_noise = math.sqrt(float(np.mean(rel[e] ** 2))) if np.isfinite(rel[e]).all() else math.nan
+        s = np.nanmax([s_rel, s_noise]) if np.isfinite([s_rel, s_noise]).any() else math.nan
+        se[e] = gain[e] * s / math.sqrt(v.size)
+        presses[e] = v.size
     gain = np.clip(gain, 1.0 / 16.0, 16.0)
     unfitted = tuple(int(e) for e in np.unique(obs_e) if int(e) not in per)
-    return {"gain": gain, "se": se, "force": force, "unfitted": unfitted}
+    return {"gain": gain, "se": se, "presses": presses, "force": force, "unfitted": unfitted}

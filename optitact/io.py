@@ -153,15 +153,24 @@ def read_json_object(path: str | os.PathLike, keys: Sequence[str], *, what: str,
 
     ``what`` names the kind of file (``"setup"``), ``writer`` what writes one
     (``"optitact register"``), for the messages.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, one that is not UTF-8 JSON (nested too
+        deeply included), or not an object holding ``keys``.
     """
     from .errors import InputError
 
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(f"{path}: no such {what} file (write one with {writer})") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except RecursionError:  # Python's parser recurses once per nested array or object
+        raise InputError(f"{path}: not a {what} JSON file (arrays or objects nested too deeply to read; "
+                         f"{writer} writes a few levels)") from None
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
         raise InputError(f"{path}: not a {what} JSON file ({exc})") from None
     if not isinstance(doc, dict) or any(k not in doc for k in keys):
         got = sorted(doc) if isinstance(doc, dict) else type(doc).__name__

@@ -74,7 +74,7 @@ class LiveFrame:
         read (dropped ones included, so dropped frames leave gaps).
     timestamp : float
         Seconds from the start of the stream to the moment the capture
-        returned this frame (``time.perf_counter`` clock).
+        returned this frame (``time.perf_counter`` clock: monotonic).
     source : str
         The frame's name as the CSV's ``source`` column writes it:
         ``LABEL#index`` (see :func:`source_label`).
@@ -90,6 +90,10 @@ class LiveFrame:
         ``"all"``).
     baseline : bool
         The frame is one of the frames averaged into the no-load baseline.
+    wall_time : float
+        The same moment on the wall clock: seconds since the epoch
+        (``time.time()`` at the start of the stream plus ``timestamp``, so
+        it never steps back with the clock); NaN when not known.
     """
 
     index: int
@@ -100,6 +104,7 @@ class LiveFrame:
     forces: object | None
     dropped: int
     baseline: bool = False
+    wall_time: float = float("nan")
 
 
 def _device_index(source) -> int | None:
@@ -366,7 +371,7 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
     """The generator behind :func:`stream` (its arguments checked)."""
     label = source_label(source)
     cap = source if _is_capture(source) else open_capture(source, size=size)
-    t0 = time.perf_counter()
+    t0, wall0 = time.perf_counter(), time.time()
     reader = _Newest(cap, t0) if policy == "newest" else None
     count = 0
 
@@ -409,12 +414,12 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
                     continue
                 pipe = pipe.with_baseline(np.stack([h[2] for h in head]))
                 for index, t, frame, dropped in head:
-                    yield _live_frame(pipe, cal, label, index, t, frame, dropped, True)
+                    yield _live_frame(pipe, cal, label, index, t, frame, dropped, True, wall0)
                     done += 1
                     if max_frames is not None and done >= max_frames:
                         return
                 continue
-            yield _live_frame(pipe, cal, label, index, t, frame, dropped, False)
+            yield _live_frame(pipe, cal, label, index, t, frame, dropped, False, wall0)
             done += 1
     finally:
         if reader is not None:
@@ -424,11 +429,11 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
 
 
 def _live_frame(pipe: Pipeline, cal, label: str, index: int, t: float, frame: np.ndarray, dropped: int,
-                is_baseline: bool) -> LiveFrame:
+                is_baseline: bool, wall0: float) -> LiveFrame:
     readings = pipe.process(frame)
     forces = cal.apply(readings) if cal is not None else None
     return LiveFrame(index=index, timestamp=t, source=f"{label}#{index}", frame=frame, readings=readings,
-                     forces=forces, dropped=dropped, baseline=is_baseline)
+                     forces=forces, dropped=dropped, baseline=is_baseline, wall_time=wall0 + t)
 
 
 class LiveWriter:
@@ -436,15 +441,22 @@ class LiveWriter:
 
     The same tables as ``optitact process`` writes
     (:class:`~optitact.tables.ReadingsWriter`: one row per frame and element,
-    with a calibration the force columns and ``NAME.per_frame.csv``), but a
-    live stream has no end to wait for, so the rows go to
+    with a calibration the force columns and ``NAME.per_frame.csv``), each
+    row ending with the frame's capture time: ``time_s`` (seconds from the
+    start of the stream, :attr:`LiveFrame.timestamp`, monotonic) and
+    ``wall_time`` (:attr:`LiveFrame.wall_time` as ISO 8601 in UTC, e.g.
+    ``2025-01-31T09:15:02.123456+00:00``). A live stream has no end to wait
+    for, so the rows go to
     :func:`~optitact.tables.partial_path` (``NAME.partial.csv``) and are flushed
     after every frame: a reader (``tail -f``, pandas) sees them as they come,
     and a crash or a killed process leaves them there. A clean stop (the
     ``with`` block ends without an error, which is how ``optitact process
     --camera`` ends a Ctrl-C, the end of the stream and ``--max-frames``)
     renames them to ``NAME`` (replacing an older file). An error keeps them
-    as ``NAME.partial.csv`` and says so in its message.
+    as ``NAME.partial.csv`` and says so in its message. Each frame's rows
+    are written whole, so the file always ends on a whole frame, even when
+    the disk fills; a second writer of the same ``NAME`` is refused while
+    this one is open (see :class:`~optitact.tables.ReadingsWriter`).
 
     Parameters
     ----------
@@ -456,7 +468,7 @@ class LiveWriter:
 
     def __init__(self, path: str | os.PathLike, *, calibration=None) -> None:
         self.with_forces = calibration is not None
-        self._writer = ReadingsWriter(path, forces=self.with_forces, visible=True,
+        self._writer = ReadingsWriter(path, forces=self.with_forces, visible=True, times=True,
                                       sensor=calibration.sensor if self.with_forces else None)
         self.path = self._writer.path
 
@@ -475,9 +487,11 @@ class LiveWriter:
         if self.with_forces:
             if frame.forces is None:
                 raise ValueError("this writer has force columns: the frame has no forces (no calibration)")
-            self._writer.write(frame.readings, [frame.source], frame.forces.local, frame.forces.clamped)
+            self._writer.write(frame.readings, [frame.source], frame.forces.local, frame.forces.clamped,
+                               time_s=[frame.timestamp], wall_time=[frame.wall_time])
         else:
-            self._writer.write(frame.readings, [frame.source])
+            self._writer.write(frame.readings, [frame.source], time_s=[frame.timestamp],
+                               wall_time=[frame.wall_time])
         self._writer.flush()
 
     def close(self) -> None:

@@ -116,25 +116,93 @@ def _node_array(node, key: str, path: str) -> np.ndarray:
     raise InputError(f"{path}: '{key}' is not a matrix or a list of numbers")
 
 
+#: Kalibr's ``camera_model`` values this package reads: the projection (Kalibr's ``pinhole``
+#: with a ``distortion_model`` of ``radtan``, ``equidistant`` or ``none``). Kalibr's omnidirectional,
+#: double-sphere and extended unified models are refused by name.
+_KALIBR_PROJECTIONS = ("pinhole",)
+
+#: What a distortion vector of each length is when a file does not say its model: OpenCV's
+#: fisheye calibration (``cv2.fisheye.calibrate``) writes 4 coefficients, ``cv2.calibrateCamera``
+#: 5, 8, 12 or 14.
+_MODEL_BY_COEFFICIENTS = {4: "fisheye", 5: "pinhole", 8: "pinhole", 12: "pinhole"}
+
+
+def _split_entry(path: str) -> tuple[str, str | None]:
+    """``camchain.yaml#cam1`` -> (``camchain.yaml``, ``cam1``); a path that exists as given is kept whole."""
+    if os.path.exists(path) or "#" not in path:
+        return path, None
+    file, _, entry = path.rpartition("#")
+    return file, entry or None
+
+
+def _open_storage(path: str):
+    """A ``cv2.FileStorage`` open for reading, or an InputError naming the file."""
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
+        ok = fs.isOpened()
+    except (cv2.error, SystemError) as exc:  # OpenCV 5 raises SystemError on a malformed file
+        cause = exc.__cause__ if isinstance(exc, SystemError) and exc.__cause__ is not None else exc
+        raise InputError(f"{path}: not a readable OpenCV FileStorage YAML/XML file (is it complete? "
+                         f"{str(cause).strip()[-160:]})") from None
+    if not ok:
+        raise InputError(f"{path}: not an OpenCV FileStorage YAML/XML file")
+    return fs
+
+
+def _camera_node(fs, path: str, entry: str | None):
+    """The map holding the camera: the root, or a Kalibr camchain's ``camN`` (``entry`` picks one)."""
+    root = fs.root()
+    keys = list(root.keys()) if root.isMap() else []
+    cams = [k for k in keys if fs.getNode(k).isMap() and "intrinsics" in fs.getNode(k).keys()]
+    if entry is not None:
+        if entry not in keys or not fs.getNode(entry).isMap():
+            raise InputError(f"{path}: no camera {entry!r} in the file; found keys {keys}")
+        return fs.getNode(entry), f"{path}#{entry}"
+    if cams and not any(k in keys for k in _K_KEYS):
+        if len(cams) > 1:
+            raise InputError(f"{path}: a Kalibr camchain with cameras {cams}; say which: "
+                             f"'{path}#{cams[0]}' (--camera-intrinsics) or read_opencv_calibration(..., "
+                             f"camera={cams[0]!r})")
+        return fs.getNode(cams[0]), f"{path}#{cams[0]}"
+    return root, path
+
+
+def _integer_size(value: float, name: str, path: str) -> int:
+    if not math.isfinite(value) or value != int(value) or value < 2:
+        raise InputError(f"{path}: image {name} must be a whole number of pixels (>= 2), got {value!r}")
+    return int(value)
+
+
 def read_opencv_calibration(path, *, model: str | None = None, width: int | None = None,
-                            height: int | None = None, rvec=(0.0, 0.0, 0.0), tvec=(0.0, 0.0, 5.0)) -> Camera:
-    """Read OpenCV's calibration output (FileStorage YAML/XML or plain YAML) into a camera.
+                            height: int | None = None, camera: str | None = None, rvec=(0.0, 0.0, 0.0),
+                            tvec=(0.0, 0.0, 5.0)) -> Camera:
+    """Read a camera calibration file (OpenCV FileStorage YAML/XML, ROS ``camera_info``, Kalibr).
 
     Parameters
     ----------
     path : str or os.PathLike
         A file written by ``cv2.FileStorage`` (OpenCV's calibration sample:
         ``camera_matrix``, ``distortion_coefficients``, ``image_width``,
-        ``image_height``), or the same keys in plain YAML (ROS
-        ``camera_info`` style ``{rows, cols, data}`` matrices too). Also
-        accepted: ``K``/``cameraMatrix``, ``D``/``dist_coeffs``/``distCoeffs``,
+        ``image_height``), the same keys in plain YAML (ROS ``camera_info``
+        style ``{rows, cols, data}`` matrices and ``distortion_model``), or a
+        Kalibr camchain (``cam0: {camera_model, intrinsics: [fu, fv, pu, pv],
+        distortion_model, distortion_coeffs, resolution}``; ``FILE#cam1`` or
+        ``camera="cam1"`` picks another camera of the chain). Also accepted:
+        ``K``/``cameraMatrix``, ``D``/``dist_coeffs``/``distCoeffs``,
         ``image_size``/``imageSize`` as ``[width, height]``.
     model : {"pinhole", "fisheye"}, optional
-        Override the model. Otherwise fisheye if the file says so
-        (``fisheye_model: 1``, or ``distortion_model``/``model`` of
-        ``fisheye``, ``equidistant`` or ``kannala_brandt``), else pinhole.
+        Override the model. Otherwise the file's own word (``fisheye_model: 1``,
+        or a ``distortion_model``/``camera_model``/``model`` such as ``plumb_bob``,
+        ``radtan``, ``fisheye``, ``equidistant``), else the number of distortion
+        coefficients decides: 4 is ``cv2.fisheye.calibrate``'s Kannala-Brandt
+        model, 5, 8 or 12 are ``cv2.calibrateCamera``'s pinhole model. Other
+        counts without a model word are refused (pass ``model``).
     width, height : int, optional
         Image size, where the file has none (or to check it).
+    camera : str, optional
+        Which camera of a Kalibr camchain (default: its only one).
     rvec, tvec : optional
         The camera's pose in the dome (see :class:`optitact.camera_models.PinholeCamera`).
 
@@ -145,90 +213,98 @@ def read_opencv_calibration(path, *, model: str | None = None, width: int | None
     Raises
     ------
     InputError
-        For a missing or unreadable file, missing keys (listing those found
-        and those expected), a distortion model it cannot read (14
-        coefficients: the tilted model), non-finite values, a K that is not a
-        camera matrix, or a width/height that disagrees with the file.
+        For a missing, unreadable or half-written file, missing keys (listing
+        those found and those expected), a camchain with several cameras and
+        none chosen, a model it cannot read (14 coefficients: the tilted model;
+        Kalibr's omni/ds/eucm), a coefficient count that does not say the model,
+        non-finite values, a non-integer image size, a K that is not a camera
+        matrix, or a width/height that disagrees with the file.
     """
     import cv2
 
-    path = os.fspath(path)
+    path, entry = _split_entry(os.fspath(path))
+    if camera is not None:
+        entry = camera
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such calibration file")
+    fs = _open_storage(path)
     try:
-        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
-        ok = fs.isOpened()
-    except cv2.error as exc:
-        raise InputError(f"{path}: not an OpenCV FileStorage YAML/XML file "
-                         f"({str(exc).strip()[-120:]})") from None
-    if not ok:
-        raise InputError(f"{path}: not an OpenCV FileStorage YAML/XML file")
-    try:
-        root = fs.root()
-        keys = list(root.keys()) if root.isMap() else []
-
-        def find(names):
-            for name in names:
-                if name in keys:
-                    return name
-            return None
-
-        kk, dk = find(_K_KEYS), find(_D_KEYS)
-        if kk is None or dk is None:
-            raise InputError(f"{path}: expected a camera matrix (one of {list(_K_KEYS)}) and distortion "
-                             f"coefficients (one of {list(_D_KEYS)}), found keys {keys}")
         try:
-            k = _node_array(fs.getNode(kk), kk, path)
-            d = _node_array(fs.getNode(dk), dk, path)
-        except cv2.error as exc:
-            raise InputError(f"{path}: could not read '{kk}'/'{dk}' ({str(exc).strip()[-120:]})") from None
-        if k.size == 4 and kk == "intrinsics":  # Kalibr's [fu, fv, pu, pv]
-            k = np.array([[k[0], 0, k[2]], [0, k[1], k[3]], [0, 0, 1]])
-        if k.size != 9:
-            raise InputError(f"{path}: '{kk}' must be a 3x3 camera matrix, got {k.size} values")
-        k = k.reshape(3, 3)
-        size = {}
-        for name in ("image_width", "image_height", "width", "height"):
-            if name in keys:
-                size[name.split("_")[-1]] = fs.getNode(name).real()
-        sk = find(("image_size", "imageSize", "resolution"))
-        if sk is not None:
-            wh = _node_array(fs.getNode(sk), sk, path)
-            if wh.size == 2:
-                size.setdefault("width", wh[0])
-                size.setdefault("height", wh[1])
-        said = None
-        if "fisheye_model" in keys:
-            said = "fisheye" if fs.getNode("fisheye_model").real() else None
-        mk = find(("distortion_model", "camera_model", "model"))
-        if mk is not None and fs.getNode(mk).isString():
-            said = fs.getNode(mk).string()
+            node, where = _camera_node(fs, path, entry)
+            keys = list(node.keys())
+
+            def find(names):
+                for name in names:
+                    if name in keys:
+                        return name
+                return None
+
+            kk, dk = find(_K_KEYS), find(_D_KEYS + ("distortion_coeffs",))
+            if kk is None or dk is None:
+                raise InputError(f"{where}: expected a camera matrix (one of {list(_K_KEYS)}) and distortion "
+                                 f"coefficients (one of {list(_D_KEYS)}), found keys {keys}")
+            k = _node_array(node.getNode(kk), kk, where)
+            d = _node_array(node.getNode(dk), dk, where)
+            if k.size == 4 and kk == "intrinsics":  # Kalibr's [fu, fv, pu, pv]
+                k = np.array([[k[0], 0, k[2]], [0, k[1], k[3]], [0, 0, 1]])
+            if k.size != 9:
+                raise InputError(f"{where}: '{kk}' must be a 3x3 camera matrix, got {k.size} values")
+            k = k.reshape(3, 3)
+            size = {}
+            for name in ("image_width", "image_height", "width", "height"):
+                if name in keys:
+                    size[name.split("_")[-1]] = node.getNode(name).real()
+            sk = find(("image_size", "imageSize", "resolution"))
+            if sk is not None:
+                wh = _node_array(node.getNode(sk), sk, where)
+                if wh.size == 2:
+                    size.setdefault("width", wh[0])
+                    size.setdefault("height", wh[1])
+            said = None
+            if "fisheye_model" in keys:
+                said = "fisheye" if node.getNode("fisheye_model").real() else "pinhole"
+            projection = node.getNode("camera_model").string() if "camera_model" in keys else None
+            mk = find(("distortion_model", "model"))
+            if mk is not None and node.getNode(mk).isString():
+                said = node.getNode(mk).string()
+        except (cv2.error, SystemError) as exc:
+            raise InputError(f"{path}: could not read the calibration ({str(exc).strip()[-160:]})") from None
     finally:
         fs.release()
+    if projection is not None and projection.lower() not in _KALIBR_PROJECTIONS + tuple(_MODEL_NAMES):
+        raise InputError(f"{where}: camera model {projection!r} is not one optitact reads (Kalibr's "
+                         f"'pinhole' projection with radtan or equidistant distortion, or OpenCV's models)")
+    if said is None and projection is not None and projection.lower() in _MODEL_NAMES:
+        said = projection
+    if said is not None and said.lower() == "none":  # Kalibr: an undistorted pinhole
+        said, d = "pinhole", np.zeros(0)
     for name, given in (("width", width), ("height", height)):
-        if name in size and not math.isfinite(size[name]):
-            raise InputError(f"{path}: image {name} must be finite, got {size[name]!r}")
+        if name in size:
+            size[name] = _integer_size(size[name], name, where)
         if given is not None:
             given = integer(given, name, minimum=2)
-            if name in size and int(size[name]) != given:
-                raise InputError(f"{path}: the file's image {name} is {int(size[name])}, not the {given} given")
+            if name in size and size[name] != given:
+                raise InputError(f"{where}: the file's image {name} is {size[name]}, not the {given} given")
             size[name] = given
         if name not in size:
-            raise InputError(f"{path}: no image {name} in the file (image_width/image_height or image_size); "
-                             f"pass {name}=")
+            raise InputError(f"{where}: no image {name} in the file (image_width/image_height, image_size or "
+                             f"resolution); pass {name}=")
     if not np.isfinite(d).all():
-        raise InputError(f"{path}: distortion coefficients must be finite, got {d.tolist()}")
+        raise InputError(f"{where}: distortion coefficients must be finite, got {d.tolist()}")
     if d.size == 14:
-        raise InputError(f"{path}: 14 distortion coefficients are OpenCV's tilted-sensor model (tauX, tauY), "
+        raise InputError(f"{where}: 14 distortion coefficients are OpenCV's tilted-sensor model (tauX, tauY), "
                          f"which optitact cannot read; recalibrate without CALIB_TILTED_MODEL (4, 5, 8 or 12 "
                          f"coefficients)")
     if model is None:
         if said is not None and said.lower() not in _MODEL_NAMES:
-            raise InputError(f"{path}: distortion model {said!r} is not one optitact reads; valid: "
+            raise InputError(f"{where}: distortion model {said!r} is not one optitact reads; valid: "
                              f"{sorted(_MODEL_NAMES)}")
-        model = said or "pinhole"
+        model = said or _MODEL_BY_COEFFICIENTS.get(d.size)
+        if model is None:
+            raise InputError(f"{where}: {d.size} distortion coefficients and no model in the file: say which "
+                             f"model it is (--model pinhole|fisheye, or model=): cv2.fisheye.calibrate writes "
+                             f"4, cv2.calibrateCamera 5, 8 or 12")
     try:
-        return camera_from_opencv(k, d, int(size["width"]), int(size["height"]), model=model, rvec=rvec,
-                                  tvec=tvec)
+        return camera_from_opencv(k, d, size["width"], size["height"], model=model, rvec=rvec, tvec=tvec)
     except InputError as exc:
-        raise InputError(f"{path}: {exc}") from None
+        raise InputError(f"{where}: {exc}") from None

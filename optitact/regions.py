@@ -156,10 +156,24 @@ def _resolve_geometry(sensor: DomeSensor, camera: Camera, radius: float | None,
                 f"frame too small: a {camera.width}x{camera.height} frame cannot resolve the element "
                 f"regions; this sensor and camera{fov} need at least "
                 f"{math.ceil(side * grid_mm / radius)} pixels on the shorter side")
+        derived = True
+    else:
+        derived = False
     grid_mm = positive(grid_mm, "grid_mm")
     if grid_mm > radius:
         raise InputError(f"grid_mm must be at most the region radius {radius:g} mm, got {grid_mm!r}")
     half = math.ceil(radius / grid_mm)
+    if 2 * half + 1 > 2001 and derived:  # nobody chose grid_mm: say what about the camera makes it so fine
+        dist = getattr(camera, "dist", None)
+        raise InputError(
+            f"this camera's model maps part of the dome onto so many pixels that one pixel spans only "
+            f"{grid_mm * OVERSAMPLE:.3g} mm of it: the element regions' grid ({OVERSAMPLE:g} cells per pixel, "
+            f"{grid_mm:.3g} mm) would need {2 * half + 1} cells per side (at most 2001). A distortion model "
+            f"that stretches the image this much is usually wrong: check the camera's "
+            f"{type(camera).__name__} distortion{f' {tuple(dist)}' if dist is not None else ''} (a fisheye "
+            f"file's k1..k4 read as a pinhole's, or coefficients from a calibration at another frame size: "
+            f"register --model, --camera-intrinsics); if it is right, give a coarser grid_mm (Pipeline's "
+            f"option)")
     if 2 * half + 1 > 2001:
         raise InputError(f"grid_mm={grid_mm} is too fine for radius={radius} "
                          f"({2 * half + 1} cells per side; at most 2001)")

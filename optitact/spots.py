@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._validate import finite, positive, real_array
-from .errors import InputError, ShapeError
+from .errors import InputError, KindError, ShapeError
 
-__all__ = ["Spots", "detect_spots", "grey_image", "spots_in_difference"]
+__all__ = ["Spots", "detect_spots", "grey_dtype", "grey_image", "spots_in_difference"]
 
 
 @dataclass(frozen=True)
@@ -51,8 +51,24 @@ class Spots:
                 "energy": self.energy, "n_pixels": self.n_pixels}
 
 
+def grey_dtype(frame, name: str) -> np.dtype | None:
+    """The dtype of an array ``frame`` (None for other array_likes); KindError naming ``name`` unless real.
+
+    Grey levels are integers or floats: a bool, complex or object frame (a mask saved by mistake) is
+    refused here, by the API and the command line alike.
+    """
+    dtype = getattr(frame, "dtype", None)
+    if dtype is None:
+        return None
+    dtype = np.dtype(dtype)
+    if dtype.kind not in "iuf":
+        raise KindError(f"{name} must hold grey levels (an integer or float image), got dtype {dtype}")
+    return dtype
+
+
 def grey_image(frame, name: str) -> np.ndarray:
     """``frame`` as a finite float64 grey image (H, W); ShapeError/InputError naming ``name`` otherwise."""
+    grey_dtype(frame, name)
     arr = real_array(frame, name)
     if arr.ndim != 2:
         raise ShapeError(f"{name} must be a grey image (H, W), got shape {arr.shape}")

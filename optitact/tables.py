@@ -29,12 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._partial import PartialCSV, PartialParquet
+from ._partial import OutputLock, PartialCSV, PartialParquet, remove_stray_partials
 from .errors import InputError, ShapeError
 
 __all__ = ["read_forces_csv", "write_forces_csv", "ReadingsWriter", "read_element_table", "csv_rows",
            "csv_numbers", "column_key", "sniff_delimiter", "partial_path", "per_frame_path",
-           "PARQUET_ROW_GROUP"]
+           "PARQUET_ROW_GROUP", "table_files", "refuse_overwriting_inputs"]
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -134,7 +134,8 @@ _FLAG_CELLS = {"0": False, "1": True, "false": False, "true": True}
 
 def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequence[str], *,
                        optional: Sequence[str] = (), flags: Sequence[str] = (),
-                       headerless: bool = True, what: str = "forces") -> dict[str, np.ndarray]:
+                       headerless: bool = True, what: str = "forces",
+                       empty: bool = False) -> dict[str, np.ndarray]:
     """Per-element columns of a CSV file, found by their header names.
 
     Parameters
@@ -155,6 +156,9 @@ def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequen
         ``element`` and ``numbers``, in that order.
     what : str
         What the file holds, for messages.
+    empty : bool
+        Accept a header with an ``element`` column and no row: no element
+        listed, all columns 0 (a forces table of no load).
 
     Returns
     -------
@@ -219,7 +223,7 @@ def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequen
     number_names = [k for k in (*wanted, *optional) if k in cols]
     flag_names = [k for k in flags if k in cols]
     has_element = "element" in header
-    if not rows:
+    if not rows and not (empty and has_element):
         raise ShapeError(f"{path}: expected {n_elements} rows of {', '.join(wanted)}, got none")
     if not has_element and len(rows) != n_elements:
         raise ShapeError(f"{path}: expected {n_elements} rows (one per element), got {len(rows)}")
@@ -272,6 +276,7 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
     Returns
     -------
     (n_elements, 3) float64 ndarray
+        Elements without a row are 0: a header ``element,fx,fy,fz`` alone is no load.
 
     Raises
     ------
@@ -295,7 +300,7 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
     >>> f.shape, f[3].tolist(), float(abs(f).sum() - 0.6) < 1e-12
     ((41, 3), [0.1, 0.0, 0.5], True)
     """
-    cols = read_element_table(path, n_elements, _HEADERS[0])
+    cols = read_element_table(path, n_elements, _HEADERS[0], empty=True)
     return np.stack([cols[k] for k in _HEADERS[0]], axis=1)
 
 
@@ -345,12 +350,67 @@ def per_frame_path(path: str | os.PathLike) -> Path:
     return path.with_name(f"{path.stem}.per_frame{path.suffix}")
 
 
+def table_files(path: str | os.PathLike, *, forces: bool = True) -> dict[str, Path]:
+    """The files a :class:`ReadingsWriter` of ``path`` may leave, by role (``forces``: the per-frame ones too).
+
+    Examples
+    --------
+    >>> [f"{k}: {v}" for k, v in table_files("out.csv").items()]  # doctest: +NORMALIZE_WHITESPACE
+    ['table: out.csv', 'partial table: out.partial.csv', 'per-frame table: out.per_frame.csv',
+     'partial per-frame table: out.per_frame.partial.csv']
+    """
+    path = Path(path)
+    files = {"table": path, "partial table": partial_path(path)}
+    if forces:
+        frame = per_frame_path(path)
+        files |= {"per-frame table": frame, "partial per-frame table": partial_path(frame)}
+    return files
+
+
+def refuse_overwriting_inputs(outputs: dict[str, Path], inputs) -> None:
+    """Refuse to write over an input: InputError when a file of ``outputs`` is one of ``inputs``.
+
+    Parameters
+    ----------
+    outputs : dict of str to Path
+        The files a run may write, keyed by how the message names them (``"--out"``).
+    inputs : iterable of path-like
+        The files it reads. The same file by another name (a link, ``./``) counts.
+
+    Raises
+    ------
+    InputError
+        Naming the output, the input and what to do.
+    """
+    written = {}
+    for what, path in outputs.items():
+        try:
+            st = os.stat(path)
+        except OSError:  # not there yet: not an input either
+            continue
+        written[(st.st_dev, st.st_ino)] = (what, path)
+    if not written:
+        return
+    for source in inputs:
+        try:
+            st = os.stat(source)
+        except OSError:
+            continue
+        hit = written.get((st.st_dev, st.st_ino))
+        if hit is not None:
+            what, path = hit
+            same = "" if os.path.abspath(path) == os.path.abspath(source) else f" (as {source})"
+            raise InputError(f"{what} {path} is an input file{same}: writing it would destroy the input; "
+                             f"choose another output name")
+
+
 #: Rows gathered before :class:`ReadingsWriter` writes a Parquet row group.
 PARQUET_ROW_GROUP = 65536
 
 
-def _csv_block(heads: Sequence[str], columns: Sequence[list], n_el: int) -> str:
-    """CSV rows: ``heads[k]`` then ``columns``' cells of rows ``k n_el .. (k+1) n_el - 1`` (ints and floats).
+def _csv_block(heads: Sequence[str], columns: Sequence[list], n_el: int,
+               tails: Sequence[str] | None = None) -> str:
+    """CSV rows: ``heads[k]``, cells of ``columns``' rows ``k n_el .. (k+1) n_el - 1`` (numbers), ``tails[k]``.
 
     One ``repr`` of the whole block: Python writes each float with the
     shortest digits that read back to the same float64, as ``repr(x)`` does,
@@ -361,9 +421,19 @@ def _csv_block(heads: Sequence[str], columns: Sequence[list], n_el: int) -> str:
     rows = list(zip(*columns, strict=True))
     out = []
     for k, head in enumerate(heads):
+        tail = tails[k] if tails is not None else ""
         body = repr(rows[k * n_el:(k + 1) * n_el])[2:-2].replace(", ", ",")
-        out.append(head + body.replace("),(", "\r\n" + head) + "\r\n")
+        out.append(head + body.replace("),(", tail + "\r\n" + head) + tail + "\r\n")
     return "".join(out)
+
+
+def _iso_utc(wall: float) -> str:
+    """Seconds since the epoch as an ISO 8601 time in UTC, to the microsecond (empty for NaN)."""
+    from datetime import datetime, timezone
+
+    if not math.isfinite(wall):
+        return ""
+    return datetime.fromtimestamp(wall, tz=timezone.utc).isoformat(timespec="microseconds")
 
 
 class ReadingsWriter:
@@ -396,13 +466,30 @@ class ReadingsWriter:
     ``pandas.read_parquet`` reads it. For long recordings: about a fifth of
     the CSV's size, and no number formatting.
 
+    With ``times=True`` (a live stream) both tables end with two columns:
+    ``time_s``, the seconds from the start of the stream to the capture of
+    the frame (a monotonic clock), and ``wall_time``, the same moment on the
+    wall clock as an ISO 8601 time in UTC (``2025-01-31T09:15:02.123456+00:00``);
+    :meth:`write` needs them then.
+
     Rows go to a hidden temporary file beside ``path`` (``.NAME.PID.partial``),
     renamed to ``path`` on :meth:`close`: a reader never sees half a table,
     and an existing ``path`` stays as it was until the new table is complete.
     Leaving the ``with`` block by an exception keeps the rows written so far
     as :func:`partial_path` (``out.partial.csv``; nothing when no frame was
     written) and adds where they are to the exception's message; a killed
-    process leaves its hidden temporary file and ``path`` untouched.
+    process leaves its hidden temporary file and ``path`` untouched. The
+    rows of each :meth:`write` go to a CSV file whole: a write that fails
+    part-way (a full disk) is cut back, so a partial table ends on the last
+    whole frame, and the error names the file. A clean :meth:`close` also
+    removes the hidden files that killed runs left for the same ``path``
+    (those whose process id no longer runs).
+
+    While a writer is open it holds a lock on ``path`` (the file
+    ``.NAME.lock`` beside it, holding the process id; released by
+    :meth:`close`, :meth:`discard` or :meth:`keep_partial`, or when the
+    process ends however it ends): a second writer of the same ``path``, in
+    this process or another, is refused.
 
     With ``visible=True`` (a live stream, which has no end to wait for) the
     rows go to :func:`partial_path` from the start instead, so that readers
@@ -414,7 +501,10 @@ class ReadingsWriter:
     MissingExtraError
         A ``.parquet`` path without pyarrow installed.
     InputError
-        ``visible=True`` with a ``.parquet`` path.
+        ``visible=True`` with a ``.parquet`` path; another writer (the
+        message names its process id) is writing ``path``.
+    OSError
+        A file cannot be written (the message names it).
     """
 
     COLUMNS = ("frame", "source", "element", "G", "ux", "uy", "contact", "saturated")
@@ -424,9 +514,14 @@ class ReadingsWriter:
                      "resultant_y", "resultant_z", "centre_of_pressure_x", "centre_of_pressure_y",
                      "centre_of_pressure_z")
 
+    #: The columns that end both tables with ``times=True``.
+    TIME_COLUMNS = ("time_s", "wall_time")
+
     def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None,
-                 visible: bool = False, stderr: bool = False) -> None:
+                 visible: bool = False, stderr: bool = False, times: bool = False) -> None:
         self.path = Path(path)
+        #: The tables end with :data:`TIME_COLUMNS`.
+        self.with_times = bool(times)
         self.with_forces = forces
         if stderr and not forces:
             raise InputError("stderr=True needs forces=True: the standard errors are of the forces")
@@ -445,20 +540,25 @@ class ReadingsWriter:
             raise InputError(f"{self.path}: a Parquet table is readable only once complete; write a live "
                              f"stream as CSV")
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        times_cols = self.TIME_COLUMNS if self.with_times else ()
 
         def partial(target: Path, header: Sequence[str]):
             if self.format == "parquet":
-                return PartialParquet(target, header, row_group=PARQUET_ROW_GROUP)
-            return PartialCSV(target, header, partial_path(target) if visible else None)
+                return PartialParquet(target, header + times_cols, row_group=PARQUET_ROW_GROUP)
+            return PartialCSV(target, header + times_cols, partial_path(target) if visible else None)
 
-        self._files = [partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ())
-                               + (self.SE_COLUMNS if self.with_stderr else ()))]
-        if forces:
-            try:
+        self._lock = OutputLock(self.path)
+        self._files = []
+        try:
+            self._files.append(partial(self.path, self.COLUMNS + (self.FORCE_COLUMNS if forces else ())
+                                       + (self.SE_COLUMNS if self.with_stderr else ())))
+            if forces:
                 self._files.append(partial(per_frame_path(self.path), self.FRAME_COLUMNS))
-            except BaseException:
-                self._files[0].finish(None)
-                raise
+        except BaseException:
+            for f in self._files:
+                f.finish(None)
+            self._lock.release()
+            raise
         if self.format == "csv":
             self._fh = self._files[0].fh
         self.frames = 0
@@ -473,15 +573,27 @@ class ReadingsWriter:
         """The files this writer makes: ``path`` (and :func:`per_frame_path` with forces)."""
         return [f.path for f in self._files]
 
-    def write(self, readings, sources: Sequence[str], forces=None, clamped=None, stderr=None) -> None:
+    def write(self, readings, sources: Sequence[str], forces=None, clamped=None, stderr=None, *,
+              time_s: Sequence[float] | None = None, wall_time: Sequence[float] | None = None) -> None:
         """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept.
 
-        ``stderr`` (``(T, E, 3)`` or ``(E, 3)`` N) is needed by a writer made with ``stderr=True``.
+        ``stderr`` (``(T, E, 3)`` or ``(E, 3)`` N) is needed by a writer made with ``stderr=True``;
+        ``time_s`` (seconds from the start of the stream) and ``wall_time`` (seconds since the epoch,
+        written as ISO 8601 in UTC), one of each per frame, by a writer made with ``times=True``.
+        The frames' rows go to each CSV table in one write: if it fails, none of them is written.
         """
         r = readings if readings.is_stack else readings._lifted()
         n, n_el = len(r), r.n_elements
         if n != len(sources):
             raise ShapeError(f"got readings of {n} frames for {len(sources)} sources")
+        times = None
+        if self.with_times:
+            if time_s is None or wall_time is None:
+                raise ValueError("this writer has time columns: pass time_s and wall_time")
+            times = (np.asarray(time_s, np.float64).reshape(-1), np.asarray(wall_time, np.float64).reshape(-1))
+            if times[0].size != n or times[1].size != n:
+                raise ShapeError(f"time_s and wall_time need one value per frame ({n}), got "
+                                 f"{times[0].size} and {times[1].size}")
         cols = {"G": r.G, "ux": r.u[..., 0], "uy": r.u[..., 1], "contact": r.contact, "saturated": r.saturated}
         per_frame = None
         if self.with_forces:
@@ -510,22 +622,28 @@ class ReadingsWriter:
                          **{f"centre_of_pressure_{a}": cop[:, i] for i, a in enumerate("xyz")}}
         frame_ids = np.arange(self.frames, self.frames + n)
         if self.format == "parquet":
+            if times is not None:
+                walls = [_iso_utc(w) for w in times[1].tolist()]
+                cols |= {"time_s": np.repeat(times[0], n_el), "wall_time": (walls, n_el)}
             names = self._files[0].schema.names
             table = {"frame": np.repeat(frame_ids, n_el), "element": np.tile(np.arange(n_el), n),
                      "source": (sources, n_el)}
             self._files[0].write(table | {k: cols[k] for k in names[3:]})
             if per_frame is not None:
-                self._files[1].write({"frame": frame_ids, "source": (sources, 1)} | per_frame)
+                extra = {} if times is None else {"time_s": times[0], "wall_time": (walls, 1)}
+                self._files[1].write({"frame": frame_ids, "source": (sources, 1)} | per_frame | extra)
             self.frames += n
             return
         heads = [f"{self.frames + k},{_csv_cell(src)}," for k, src in enumerate(sources)]
+        tails = None if times is None else [f",{t!r},{_iso_utc(w)}"
+                                            for t, w in zip(times[0].tolist(), times[1].tolist(), strict=True)]
         names = self.COLUMNS[3:] + (self.FORCE_COLUMNS if self.with_forces else ()) \
             + (self.SE_COLUMNS if self.with_stderr else ())
         columns = [list(range(n_el)) * n]
         for name in names:
             v = cols[name]
             columns.append((v.view(np.uint8) if v.dtype == bool else v).reshape(-1).tolist())
-        self._files[0].write(_csv_block(heads, columns, n_el))
+        block = [_csv_block(heads, columns, n_el, tails)]
         if per_frame is not None:
             lines = []
             res, cop = per_frame, tot["centre_of_pressure"].tolist()
@@ -533,19 +651,40 @@ class ReadingsWriter:
                 where = ",".join("" if math.isnan(v) else repr(v) for v in cop[k])
                 lines.append(f"{head}{int(res['n_contact'][k])},{int(res['n_clamped'][k])},"
                              f"{float(res['total_normal'][k])!r},{float(res['resultant_x'][k])!r},"
-                             f"{float(res['resultant_y'][k])!r},{float(res['resultant_z'][k])!r},{where}\r\n")
-            self._files[1].write("".join(lines))
+                             f"{float(res['resultant_y'][k])!r},{float(res['resultant_z'][k])!r},{where}"
+                             f"{tails[k] if tails else ''}\r\n")
+            block.append("".join(lines))
+        sizes = [f.size for f in self._files]
+        for i, text in enumerate(block):
+            try:
+                self._files[i].write(text)
+            except OSError:  # the tables end on the same whole frame: cut back the ones already written
+                for f, size in zip(self._files[:i], sizes, strict=False):
+                    f.truncate(size)
+                raise
         self.frames += n
 
     def close(self) -> None:
-        """Close the files and move them to their paths (again: nothing)."""
-        for f in reversed(self._files):  # the main table last: when it is there, both are
-            f.finish(f.path)
+        """Close the files and move them to their paths (again: nothing); remove what killed runs left.
+
+        The hidden ``.NAME.PID.partial`` files of earlier runs of the same tables whose process no
+        longer runs are removed; the lock is released.
+        """
+        try:
+            for f in reversed(self._files):  # the main table last: when it is there, both are
+                f.finish(f.path)
+            for f in self._files:
+                remove_stray_partials(f.path)
+        finally:
+            self._lock.release()
 
     def discard(self) -> None:
         """Close and delete the rows written so far; ``path`` is left as it was."""
-        for f in self._files:
-            f.finish(None)
+        try:
+            for f in self._files:
+                f.finish(None)
+        finally:
+            self._lock.release()
 
     def keep_partial(self) -> list[Path]:
         """Close and keep the rows written so far as :func:`partial_path` files (none without rows)."""
@@ -553,8 +692,11 @@ class ReadingsWriter:
             self.discard()
             return []
         kept = [partial_path(f.path) for f in self._files]
-        for f, to in zip(self._files, kept, strict=True):
-            f.finish(to)
+        try:
+            for f, to in zip(self._files, kept, strict=True):
+                f.finish(to)
+        finally:
+            self._lock.release()
         return kept
 
     def __enter__(self) -> ReadingsWriter:

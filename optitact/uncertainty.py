@@ -51,14 +51,19 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import integer, positive
-from .errors import InputError, ShapeError
-from .steps import check_frames
+from .errors import InputError, KindError, ShapeError
+from .steps import MAX_GREY, check_frames
 
-__all__ = ["Z90", "PixelNoise", "ReadingErrors", "coverage", "coverage_spread", "error_ratio",
-           "reading_errors"]
+__all__ = ["Z90", "MAX_DN_PER_ELECTRON", "PixelNoise", "ReadingErrors", "coverage", "coverage_spread",
+           "error_ratio", "reading_errors", "saturated_pixels"]
 
 #: Half-width of the two-sided 90 % interval of a normal error, in standard errors.
 Z90 = 1.6448536269514722
+
+#: Largest conversion gain :class:`PixelNoise` takes, grey levels per electron: one electron spanning
+#: the whole range of a 16-bit frame. Cameras have about 0.01 to 10 (an EMCCD, with its multiplication
+#: gain, a few hundred); a larger value is a mistake of units, and would overflow the variances.
+MAX_DN_PER_ELECTRON = 65535.0
 
 
 @dataclass(frozen=True)
@@ -69,7 +74,7 @@ class PixelNoise:
     ----------
     dn_per_electron : float
         Conversion gain ``g`` of the frames, grey levels per photo-electron
-        (>= 0; 0: no shot noise). The CCD model's is
+        (>= 0, at most :data:`MAX_DN_PER_ELECTRON`; 0: no shot noise). The CCD model's is
         ``CCD.dn_per_electron`` (:meth:`from_ccd`); for a real camera it is
         on its data sheet (as electrons per DN: take the inverse, scaled to
         the bit depth of the frames), or :meth:`estimate` measures it.
@@ -105,12 +110,17 @@ class PixelNoise:
     exponent: float = 1.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "dn_per_electron",
-                           positive(self.dn_per_electron, "dn_per_electron", allow_zero=True))
-        object.__setattr__(self, "lit_variance", positive(self.lit_variance, "lit_variance", allow_zero=True))
+        # the bounds keep every variance of reading_errors finite (pixel values are at most MAX_GREY)
+        object.__setattr__(self, "dn_per_electron", _at_most(
+            self.dn_per_electron, "dn_per_electron", MAX_DN_PER_ELECTRON,
+            "grey levels per electron (one electron spanning a 16-bit frame's range; cameras have about "
+            "0.01 to 10)"))
+        object.__setattr__(self, "lit_variance", _at_most(
+            self.lit_variance, "lit_variance", MAX_GREY, "grey levels squared"))
         object.__setattr__(self, "exponent", _exponent(self.exponent))
         if self.read_sigma is not None:
-            object.__setattr__(self, "read_sigma", positive(self.read_sigma, "read_sigma", allow_zero=True))
+            object.__setattr__(self, "read_sigma", _at_most(self.read_sigma, "read_sigma", MAX_GREY,
+                                                            "grey levels"))
 
     def to_dict(self) -> dict:
         """JSON-ready: the four parameters (``read_sigma`` None: the pipeline's own)."""
@@ -169,11 +179,15 @@ class PixelNoise:
         ----------
         noload, pressed : (T, H, W) array_like
             Frames of the same camera settings, ``T >= 2`` each: unloaded,
-            and pressed by a load that does not change between frames.
+            and pressed by a load that does not change between frames. Grey
+            levels of one dtype (integer, e.g. ``uint8`` or ``uint16``, or
+            float of any precision).
         min_signal : float
             Only pixels whose mean signal (pressed minus unloaded mean) is
             above this (grey levels) enter the fit (default 20: below a few
             grey levels of noise, rounding bends the photon-transfer line).
+            Saturated pixels (:func:`saturated_pixels`) never do: a clipped
+            pixel's variance says nothing of its noise.
         exponent : float or "fit"
             The power of the signal the excess variance grows with (default
             1: shot noise, a camera's), or ``"fit"`` to measure it too (noise
@@ -198,10 +212,14 @@ class PixelNoise:
 
         Raises
         ------
+        KindError
+            A stack that is not of an integer or float dtype (bool, complex, object).
         ShapeError
             The stacks are not (T, H, W) with T >= 2, or of different frame shapes.
         InputError
-            Fewer than 10 pixels above ``min_signal``.
+            Stacks of different integer dtypes (bit depths), a float pixel that
+            is not finite, fewer than 10 unsaturated pixels above ``min_signal``
+            (the message says whether saturation left too few).
 
         Notes
         -----
@@ -210,20 +228,26 @@ class PixelNoise:
         add (nearly) the same variance with and without load and go into
         the intercept.
         """
-        a, b = (np.asarray(s, dtype=np.float64) for s in (noload, pressed))
-        for name, s in (("noload", a), ("pressed", b)):
-            if s.ndim != 3 or s.shape[0] < 2:
-                raise ShapeError(f"{name} must be a stack (T, H, W) with T >= 2, got shape {s.shape}")
-        if a.shape[1:] != b.shape[1:]:
-            raise ShapeError(f"noload and pressed frames must have the same shape, got {a.shape[1:]} and "
-                             f"{b.shape[1:]}")
+        raw = _photon_stacks(noload, pressed)
+        saturated = saturated_pixels(*raw)
+        a, b = (np.asarray(s, dtype=np.float64) for s in raw)
         signal = b.mean(axis=0) - a.mean(axis=0)
         excess = b.var(axis=0, ddof=1) - a.var(axis=0, ddof=1)
-        lit = signal > positive(min_signal, "min_signal", allow_zero=True)
+        above = signal > positive(min_signal, "min_signal", allow_zero=True)
+        lit = above & ~saturated
         if np.count_nonzero(lit) < 10:
-            raise InputError(f"pressed: only {np.count_nonzero(lit)} pixels have a mean signal above "
+            n_above, n_lit = np.count_nonzero(above), np.count_nonzero(lit)
+            if n_above > n_lit:
+                top = _full_scale(raw[1].dtype)
+                raise InputError(
+                    f"pressed: {n_above - n_lit} of the {n_above} pixels with a mean signal above "
+                    f"min_signal={min_signal:g} grey levels are saturated (at {top:g}, the {raw[1].dtype} "
+                    f"maximum, in some frame), leaving {n_lit}: a clipped pixel carries no noise "
+                    f"information; lower the exposure, gain or light, or press more lightly, so that "
+                    f"at least 10 lit pixels stay below saturation")
+            raise InputError(f"pressed: only {n_lit} pixels have a mean signal above "
                              f"min_signal={min_signal:g} grey levels; press harder or lower min_signal")
-        read = math.sqrt(float(a.var(axis=0, ddof=1).mean()) * (1.0 + 1.0 / a.shape[0]))
+        read = math.sqrt(float(a.var(axis=0, ddof=1)[~saturated].mean()) * (1.0 + 1.0 / a.shape[0]))
         if isinstance(exponent, str):
             if exponent != "fit":
                 raise InputError(f"exponent must be a number or 'fit', got {exponent!r}")
@@ -232,6 +256,83 @@ class PixelNoise:
         power = _exponent(exponent)
         slope, intercept = (float(c) for c in np.polyfit(signal[lit] ** power, excess[lit], 1))
         return cls(max(slope, 0.0), read, max(intercept, 0.0), power)
+
+
+def saturated_pixels(*stacks) -> np.ndarray:
+    """Pixels at their integer dtype's maximum (255 for ``uint8``) in any frame of the stacks.
+
+    Parameters
+    ----------
+    *stacks : (T, H, W) array_like
+        Frames of one shape; float frames have no known full scale and are
+        never saturated here.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> s = np.zeros((2, 1, 3), np.uint8)
+    >>> s[1, 0, 2] = 255
+    >>> saturated_pixels(s).tolist()
+    [[False, False, True]]
+    """
+    out = None
+    for s in stacks:
+        arr = np.asarray(s)
+        hit = (arr == _full_scale(arr.dtype)).any(axis=0) if arr.dtype.kind in "ui" else \
+            np.zeros(arr.shape[1:], bool)
+        out = hit if out is None else out | hit
+    if out is None:
+        raise TypeError("saturated_pixels needs at least one stack")
+    return out
+
+
+def _full_scale(dtype: np.dtype) -> float:
+    """The largest grey level of an integer dtype (inf for a float one)."""
+    return float(np.iinfo(dtype).max) if dtype.kind in "ui" else math.inf
+
+
+def _photon_stacks(noload, pressed) -> tuple[np.ndarray, np.ndarray]:
+    """The two stacks of :meth:`PixelNoise.estimate`, checked: (T, H, W), T >= 2, one frame shape and dtype."""
+    out = []
+    for name, s in (("noload", noload), ("pressed", pressed)):
+        try:
+            arr = np.asarray(s)
+        except (ValueError, TypeError) as exc:  # ragged nested sequences
+            raise KindError(f"{name} must be a stack of grey levels (T, H, W); could not make one ({exc})") \
+                from None
+        if arr.dtype.kind not in "uif":
+            raise KindError(f"{name} must hold grey levels of an integer or float dtype (uint8, uint16, "
+                            f"float32, float64), got {arr.dtype}")
+        if arr.ndim != 3 or arr.shape[0] < 2:
+            raise ShapeError(f"{name} must be a stack (T, H, W) with T >= 2, got shape {arr.shape}")
+        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+            raise InputError(f"{name} must hold finite grey levels, got NaN or infinity")
+        out.append(arr)
+    a, b = out
+    if a.shape[1:] != b.shape[1:]:
+        raise ShapeError(f"noload and pressed frames must have the same shape, got {a.shape[1:]} and "
+                         f"{b.shape[1:]}")
+    if a.dtype != b.dtype and not (a.dtype.kind == b.dtype.kind == "f"):
+        raise InputError(f"noload frames are {_depth(a.dtype)} and pressed frames {_depth(b.dtype)}: both "
+                         f"stacks must come from one camera setting, at one bit depth")
+    return a, b
+
+
+def _depth(dtype: np.dtype) -> str:
+    """``"uint8 (8-bit)"``, ``"float32"``: a dtype and, for integers, its bit depth."""
+    return f"{dtype} ({8 * dtype.itemsize}-bit)" if dtype.kind in "ui" else str(dtype)
+
+
+def _at_most(value, name: str, bound: float, unit: str) -> float:
+    """``value`` checked finite, >= 0 and at most ``bound`` (``unit`` says what it is, for the message)."""
+    v = positive(value, name, allow_zero=True)
+    if v > bound:
+        raise InputError(f"{name} must be at most {bound:g} {unit}, got {value!r}")
+    return v
 
 
 def _exponent(value) -> float:
@@ -377,6 +478,9 @@ def reading_errors(pipeline, frames, noise: PixelNoise, readings=None) -> Readin
     cov[..., :, 0] /= r
     contact = np.asarray(readings.contact).reshape(t_n, n_el)
     cov[~contact] = 0.0
+    if not np.isfinite(cov).all():  # never an empty standard error for a contact
+        raise InputError(f"the readings' variances overflow with this noise model ({noise}) on these "
+                         f"frames' grey levels; check the noise model's units")
     return ReadingErrors(cov[0] if single else cov)
 
 

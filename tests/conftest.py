@@ -48,3 +48,17 @@ def pytest_collection_modifyitems(config, items):
         notebooks / f"{name}.ipynb" for name in EARLY_NOTEBOOKS
         if any(item.get_closest_marker("notebook") is not None and item.name.endswith(f"[{name}]")
                for item in items)]
+
+
+@pytest.fixture
+def user(tmp_path, tmp_path_factory):
+    """A researcher's shell for outside-in tests: fresh folder and cache, the installed ``optitact``.
+
+    ``user.run("process", ...)`` runs the entry point as a subprocess (``tests/outside_in.py``);
+    ``cached=True`` lets a command use the session's shared render cache instead of an empty one.
+    """
+    from outside_in import User
+    import os
+
+    return User(tmp_path / "work", tmp_path / "cache",
+                shared_cache=pathlib.Path(os.environ["OPTITACT_CACHE_DIR"]))

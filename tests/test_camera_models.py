@@ -282,10 +282,10 @@ def test_read_opencv_calibration_sample_output(tmp_path, suffix):
     fe = CAMERAS[7]
     write_calibration(tmp_path / f"fe{suffix}", fe.K, fe.D, extra={"fisheye_model": 1})
     assert read_opencv_calibration(tmp_path / f"fe{suffix}", rvec=fe.rvec, tvec=fe.tvec) == fe
-    # 4 coefficients without a word of fisheye: OpenCV's pinhole (k1, k2, p1, p2)
+    # 4 coefficients without a model key: what cv2.fisheye.calibrate writes (cv2.calibrateCamera: 5, 8, 12)
     write_calibration(tmp_path / f"four{suffix}", fe.K, fe.D)
-    assert isinstance(read_opencv_calibration(tmp_path / f"four{suffix}"), PinholeCamera)
-    assert isinstance(read_opencv_calibration(tmp_path / f"four{suffix}", model="fisheye"), OpenCVFisheyeCamera)
+    assert read_opencv_calibration(tmp_path / f"four{suffix}", rvec=fe.rvec, tvec=fe.tvec) == fe
+    assert isinstance(read_opencv_calibration(tmp_path / f"four{suffix}", model="pinhole"), PinholeCamera)
 
 
 def test_read_plain_yaml_and_arrays(tmp_path):

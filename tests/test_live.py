@@ -85,7 +85,7 @@ def test_camera_file_gives_the_same_forces_as_process(tmp_path, frames, cal, vid
     assert sorted(p.name for p in tmp_path.iterdir()) == ["camera.csv", "camera.per_frame.csv", "process.csv",
                                                          "process.per_frame.csv"]
     got, want = read_csv(b), read_csv(a)
-    assert list(got[0]) == list(want[0]) and len(got) == len(want) == 5 * 41
+    assert list(got[0]) == [*want[0], "time_s", "wall_time"] and len(got) == len(want) == 5 * 41
     assert [r["source"] for r in got] == [r["source"] for r in want]  # clip.avi#k in both
     names = ("G", "ux", "uy", "fx", "fy", "fz", "fx_global", "fy_global", "fz_global")
     np.testing.assert_allclose(columns(got, names, 5), columns(want, names, 5), rtol=1e-9, atol=1e-12)

@@ -145,7 +145,8 @@ def test_a_killed_run_never_leaves_half_a_table_under_the_real_name(tmp_path):
     assert r.returncode == 9, r.stderr
     assert out.read_bytes() == before  # the complete table of the earlier run, not half of the new one
     # what the killed run left is hidden and says it is partial; no visible CSV but the complete one
-    left = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("good.npy", "rec.npy", "out.csv"))
+    left = sorted(p.name for p in tmp_path.iterdir()
+                  if p.name not in ("good.npy", "rec.npy", "out.csv", ".out.csv.lock"))  # the lock: taken over
     assert len(left) == 1 and left[0].startswith(".out.csv.") and left[0].endswith(".partial"), left
     held = (tmp_path / left[0]).read_text().splitlines()
     assert held[0].startswith(HEADER) and len(held) == 1 + 4 * 41  # the baseline frame and a batch of 3
@@ -153,6 +154,8 @@ def test_a_killed_run_never_leaves_half_a_table_under_the_real_name(tmp_path):
     # the next run to the same path completes and replaces the old table with the whole new one
     process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out)
     assert len(_rows(out)) == 10 * 41 and out.read_text().startswith(HEADER)
+    # ... and removes what the killed run left (its process is gone): the hidden rows and the lock
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.npy", "out.csv", "rec.npy"]
 
 
 def test_force_field_to_csv_is_atomic(tmp_path, monkeypatch):
@@ -260,7 +263,7 @@ def test_a_killed_parquet_run_leaves_no_file_under_the_real_name(tmp_path):
     r = subprocess.run([sys.executable, "-c", KILLED_PARQUET, str(tmp_path / "rec.npy"), str(out)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 9, r.stderr
-    left = sorted(p.name for p in tmp_path.iterdir() if p.name != "rec.npy")
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("rec.npy", ".out.parquet.lock"))
     assert len(left) == 1 and left[0].startswith(".out.parquet.") and left[0].endswith(".partial"), left
     assert (tmp_path / left[0]).stat().st_size > 0  # row groups were written, but no footer: not a table
     with pytest.raises(Exception, match="(?i)parquet"):

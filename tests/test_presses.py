@@ -143,9 +143,13 @@ def test_refinement_with_5_presses_beats_scratch(stand_in):
                                          camera=start.camera), *stand_in["test"])["rmse_pct_fs"]
     for k in ("fx", "fy", "fz"):
         assert refined[k] < 1.2 and refined[k] < unrefined[k] and refined[k] < scratch10[k], k
-    # the gains found are the stand-in's brightness (+-15 %) to within 3 %
+    # the gains kept are the stand-in's brightness (+-15 %) to within 3 %; where the held-out presses
+    # cannot tell a gain from the noise it stays 1, and the stand-in's is within 5 % of that
     k_true = stand_in["truth"].g_scale / start.g_scale
-    np.testing.assert_allclose(cal.provenance["gain"], k_true, rtol=0.03)
+    kept = cal.provenance["kept_groups"]["gain"]
+    assert len(kept) >= 30, kept
+    np.testing.assert_allclose(np.asarray(cal.provenance["gain"])[kept], k_true[kept], rtol=0.03)
+    np.testing.assert_allclose(cal.provenance["gain"], k_true, rtol=0.05)
 
 
 def test_refinement_keeps_the_start_for_unpressed_elements(stand_in):

@@ -23,7 +23,7 @@ from optitact import DomeSensor, OpenCVFisheyeCamera, contact_patches, pixel_fro
 from optitact.camera import rotation_from_rvec
 from optitact.camera_models import pose_from_position
 from optitact.errors import ShapeError
-from optitact.register import Registration, RegistrationError, detect_spots, register
+from optitact.register import Registration, RegistrationError, RegistrationWarning, detect_spots, register
 
 SENSOR = DomeSensor.default()
 W, H = 320, 240
@@ -240,7 +240,8 @@ def test_too_few_elements_are_refused(standins):
 def test_a_ring_alone_cannot_tell_focal_length_from_height(standins):
     true, _, _ = standins[0]
     noload, pressed = frames(true, 0, presses=([1, 2, 3, 4, 5, 6, 7, 8],))
-    with pytest.raises(RegistrationError, match="degenerate pose: the condition number"):
+    # the dome's prior pins its radius; focal length and height stay apart only by a condition number of 5e8
+    with pytest.raises(RegistrationError, match=r"(degenerate pose|not converge).* tell .*(fx.*z_mm|z_mm.*fx)"):
         register(noload, pressed, camera=replace(NOMINAL, dist=true.dist), fit_intrinsics=True, fit_dome=True)
 
 
@@ -376,7 +377,8 @@ def test_fitted_offsets_make_a_sensor_that_reprojects_its_cones_where_they_are(s
     truth = DomeSensor(element_offsets=np.random.default_rng(9).normal(0.0, 0.12, (41, 2)))
     noload, pressed = frames(true, 4, sensor=truth)
     start = replace(NOMINAL, fx=true.fx, fy=true.fy, cx=true.cx, cy=true.cy, dist=true.dist)
-    plain = register(noload, pressed, camera=start)
+    with pytest.warns(RegistrationWarning, match="add --fit-offsets"):  # 0.47 px, the spots' noise 0.04 px
+        plain = register(noload, pressed, camera=start)
     reg = register(noload, pressed, camera=start, fit_offsets=True)
     assert reg.rms_px <= 0.15 and plain.rms_px > 3 * reg.rms_px  # offsets explain what the pose alone cannot
     setup = json.loads(json.dumps(reg.to_dict()))
@@ -456,6 +458,6 @@ def test_register_recovers_element_gains(gain_frames):
     np.testing.assert_allclose(ratio, np.median(ratio), rtol=0.05)
     # each pressed twice: a standard error from the pooled spread of the repeats (CCD noise only)
     assert all(0 < reg.std_errors[f"gain_{e}"] < 0.02 for e in seen)
-    assert np.isnan(ref.std_errors["gain_2"])  # pressed once: no spread to measure
+    assert 0 < ref.std_errors["gain_2"] < 0.02  # pressed once: the frames' noise through the region sums
     with pytest.raises(optitact.InputError, match="press_force .* needs fit_gains=True"):
         register(*gain_frames["built"], press_force=0.6)

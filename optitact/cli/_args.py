@@ -155,3 +155,24 @@ def pattern_choices() -> tuple[str, ...]:
 def render_mode_choices() -> tuple[str, ...]:
     """How calibration frames can be rendered."""
     return ("two_stage", "pixels", "full")
+
+
+def calibration_on_setup(cal, setup, *, shipped: bool, setup_path):
+    """``cal`` for a ``--setup``'s sensor and camera: the shipped one transferred, any other checked.
+
+    The shipped calibration is made for the package's own sensor and camera; on a setup's
+    (registered) sensor it is :meth:`Calibration.transferred` (and the command says so). A
+    calibration file is refused when it was made for another sensor or camera
+    (``CalibrationMismatchError``, naming what differs). Without a setup, ``cal`` as it is.
+    """
+    import sys
+
+    if setup is None:
+        return cal
+    sensor, camera = setup
+    if shipped and (cal.sensor != sensor or cal.camera != camera):
+        cal = cal.transferred(sensor, camera)
+        print(f"optitact: the shipped calibration is transferred to the setup's sensor and camera "
+              f"({setup_path}: fingerprint {cal.fingerprint}, element gains folded into G)", file=sys.stderr)
+    cal.check(sensor=sensor, camera=camera)
+    return cal

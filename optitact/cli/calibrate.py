@@ -9,8 +9,8 @@ import numpy as np
 
 from optitact.errors import InputError
 
-from ._args import image_size_parent, int_at_least, pattern_choices, plot_parent, positive_int, \
-    render_mode_choices, seed_parent, spp_parent, variant_parent
+from ._args import calibration_on_setup, image_size_parent, int_at_least, out_file, pattern_choices, \
+    plot_parent, positive_int, render_mode_choices, seed_parent, spp_parent, variant_parent
 
 __all__ = ["add_parsers"]
 
@@ -80,10 +80,14 @@ def add_parsers(sub) -> None:
                     "element-local unless a frame_of_reference column says global; frame is the file "
                     "name as optitact process names it in its source column, e.g. press_001.png or "
                     "clip.avi#12, or a 0-based index into the frames in order; elements and frames "
-                    "without a row are unloaded). From scratch each element needs 8 presses; --start "
-                    "refines a calibration (a gain on G and a scale on the shear curve per element) "
-                    "from as few as 2 per element and keeps its curves for elements pressed less. "
-                    "Write the curves as JSON; --plot saves them with their residuals.")
+                    "without a row are unloaded; a unit in brackets, 'Fz (mN)', is converted: N, mN, kN, "
+                    "gf, kgf, lbf, ozf). From scratch each element needs 8 presses; --start refines a "
+                    "calibration from as few as 2 per element: a gain on G, a scale on the shear curve and "
+                    "a shift of the zero-shear centroid, each kept per element only where it beats the "
+                    "start on held-out presses (5-fold over each element's presses, leave-one-out below "
+                    "5, seeded; the figures go to stderr and the file's provenance); elements pressed "
+                    "less keep its curves. Write the curves as JSON; --plot saves them with their "
+                    "residuals.")
     fitp.add_argument("set", type=Path, nargs="?", default=None, metavar="SET.zarr",
                       help="a calibration set (or give --frames and --forces)")
     fitp.add_argument("--model", choices=("ohka", "coupled"), default=None,
@@ -109,7 +113,7 @@ def add_parsers(sub) -> None:
                            "the start's, else the default sensor and a camera of the frames' size")
     fitp.add_argument("--start", default=None, metavar="default|CAL.json",
                       help="with --frames: refine this calibration ('default': the shipped one) instead "
-                           "of fitting from scratch")
+                           "of fitting from scratch, keeping per element what beats it on held-out presses")
     fitp.set_defaults(run=run_fit)
     test = csub.add_parser(
         "test", parents=[plot_parent("save estimated vs true forces of the pressed elements as PNG")],
@@ -122,6 +126,10 @@ def add_parsers(sub) -> None:
     test.add_argument("--calibration", required=True, metavar="default|CAL.json",
                       help="the calibration to test ('default': the shipped one)")
     _presses_arguments(test, required=True)
+    test.add_argument("--setup", type=Path, default=None, metavar="SETUP.json",
+                      help="the sensor and camera of a setup file (from optitact register): the shipped "
+                           "calibration ('default') is transferred to them; a calibration file must be "
+                           "made for them")
     test.add_argument("--json", action="store_true", help="print the report as one JSON object on stdout")
     test.add_argument("--validated", type=Path, default=None, metavar="OUT.json",
                       help="also write the calibration with its error measured on these presses (a floor plus "
@@ -139,14 +147,17 @@ def add_parsers(sub) -> None:
                     "the press lights, the pressed frames' variance beyond the no-load one grows with "
                     "the mean signal: its slope is the conversion gain (grey levels per electron), its "
                     "intercept the variance every lit pixel has beyond read and shot noise (rounding); "
-                    "the no-load frames' temporal noise is the read noise. Writes them as JSON, which "
+                    "the no-load frames' temporal noise is the read noise. Saturated pixels (at the "
+                    "largest grey level of 8- or 16-bit frames) carry no noise and are left out; both "
+                    "stacks must be of one bit depth. Writes them as JSON, which "
                     "process --stderr --noise reads to give each frame's noise in the forces' standard "
                     "errors; prints the model as one JSON object on stdout.")
     noise.add_argument("--noload", type=Path, nargs="+", required=True, metavar="FRAMES",
                        help="frames of the unloaded sensor: image files, folders, .npy stacks or videos")
     noise.add_argument("--pressed", type=Path, nargs="+", required=True, metavar="FRAMES",
                        help="frames under one unchanging press, at the same camera settings")
-    noise.add_argument("--out", type=Path, required=True, metavar="NOISE.json", help="the noise file to write")
+    noise.add_argument("--out", type=out_file(".json"), required=True, metavar="NOISE.json",
+                       help="the noise file to write")
     noise.add_argument("--min-signal", type=float, default=20.0, metavar="DN",
                        help="only pixels whose mean signal (pressed minus no-load) is above this many grey "
                             "levels enter the fit (default 20: below a few levels of noise, rounding bends "
@@ -163,7 +174,8 @@ def _presses_arguments(p, *, required: bool = False) -> None:
     p.add_argument("--frames", type=Path, nargs="+", default=None, required=required, metavar="FRAMES",
                    help="frames of the presses: image files, folders, .npy stacks or videos, in order")
     p.add_argument("--forces", type=Path, default=None, required=required, metavar="GAUGE.csv",
-                   help="the gauge's forces: frame, element, fx, fy, fz (N) [, frame_of_reference]")
+                   help="the gauge's forces: frame, element, fx, fy, fz [, frame_of_reference]; in N, or in "
+                        "the unit the header names: 'Fz (mN)' (N, mN, kN, gf, kgf, lbf, ozf)")
     p.add_argument("--baseline", type=Path, default=None, metavar="NOLOAD",
                    help="no-load frame(s) (default: the first --baseline-frames frames)")
     p.add_argument("--baseline-frames", type=int_at_least(0, "an integer >= 0"), default=1, metavar="N",
@@ -293,6 +305,8 @@ def _run_fit_presses(args) -> int:
           f"({int(n_press.min())}-{int(n_press.max())} per element); median RMS residual Fx "
           f"{np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} N; "
           f"wrote {args.out}", file=sys.stderr)
+    if start is not None:
+        _print_refinement(cal.provenance)
     if args.plot is not None:
         from optitact.calib.plots import plot_fit
 
@@ -300,6 +314,20 @@ def _run_fit_presses(args) -> int:
         print(f"optitact: wrote {args.plot}", file=sys.stderr)
     print(args.out)
     return 0
+
+
+def _print_refinement(prov: dict) -> None:
+    """What a refinement kept per group and its held-out RMSE against the start's, on stderr."""
+    names = {"gain": "gain", "shear_scale": "shear scale", "centroid_shift": "centroid shift"}
+    n_el = len(prov["refined_elements"])
+    kept = ", ".join(f"{names[g]} on {len(ids)}" for g, ids in prov["kept_groups"].items())
+    held = prov["held_out"]
+    rmse = held["rmse_n"]
+    figures = ", ".join(f"{k.capitalize()} {rmse['start'][k]:.4f} -> {rmse['refined'][k]:.4f} N"
+                        for k in ("fx", "fy", "fz"))
+    print(f"optitact: kept per element only what beat the start on held-out presses ({held['folds']}): "
+          f"{kept} of {n_el} elements; held-out RMSE over {held['samples']} presses, start -> refined: "
+          f"{figures}", file=sys.stderr)
 
 
 def _presses_pipeline(setup, start, frames):
@@ -330,6 +358,12 @@ def run_test(args) -> int:
     from optitact.calib.press_fit import starting_calibration
 
     cal = starting_calibration(args.calibration)
+    if args.setup is not None:
+        from optitact.setup import read_setup
+
+        setup = read_setup(args.setup)
+        cal = calibration_on_setup(cal, (setup.sensor, setup.camera),
+                                   shipped=str(args.calibration) == "default", setup_path=args.setup)
     base, n_base = _baseline(args)
     p = measure_presses(args.frames, args.forces, pipeline=cal.pipeline(), baseline=base,
                         baseline_frames=n_base, progress=True)
@@ -377,26 +411,49 @@ def run_test(args) -> int:
     return 0
 
 
-def _stack(paths: list[Path], option: str) -> np.ndarray:
-    """The frames of ``paths`` (files, folders, stacks, videos) as one (T, H, W) stack."""
-    from optitact.frames import expand_sources, iter_frames
+def _stack(files: list[Path], option: str) -> np.ndarray:
+    """The frames of ``files`` (expanded sources: files, stacks, videos) as one (T, H, W) stack.
 
-    frames = [(name, f) for name, f in iter_frames(expand_sources(paths))]
+    The frames must be of one size and dtype, and grey levels (integer or float, not bool).
+    """
+    from optitact.frames import iter_frames
+
+    frames = [(name, f) for name, f in iter_frames(files)]
     if not frames:
         raise InputError(f"{option}: the frames hold no frame")
-    shape = frames[0][1].shape
+    first, shape, dtype = frames[0][0], frames[0][1].shape, frames[0][1].dtype
     for name, f in frames:
+        if f.dtype.kind not in "uif":
+            raise InputError(f"{option}: {name} holds {f.dtype} values; expected grey levels (uint8, uint16 "
+                             f"or float frames)")
         if f.shape != shape:
             raise InputError(f"{option}: {name} is {f.shape[1]}x{f.shape[0]}, the first frame "
                              f"{shape[1]}x{shape[0]}: the frames must be of one camera")
+        if f.dtype != dtype:
+            raise InputError(f"{option}: {name} is {f.dtype}, the first frame ({first}) {dtype}: the frames "
+                             f"must be of one bit depth")
     return np.stack([f for _, f in frames])
+
+
+def _noise_files(args) -> tuple[list[Path], list[Path]]:
+    """The --noload and --pressed files, expanded; InputError if a file is in both."""
+    from optitact.frames import expand_sources
+
+    noload, pressed = expand_sources(args.noload), expand_sources(args.pressed)
+    seen = {p.resolve(): p for p in noload}
+    for p in pressed:
+        if p.resolve() in seen:
+            raise InputError(f"{p} is given as --pressed and as --noload ({seen[p.resolve()]}); the noise "
+                             f"is measured from two different recordings: frames without load and frames "
+                             f"under one constant load")
+    return noload, pressed
 
 
 def run_noise(args) -> int:
     """``optitact calibrate noise``: the pixel noise model as JSON on stdout, written to --out."""
     import json
 
-    from optitact.uncertainty import PixelNoise
+    from optitact.uncertainty import PixelNoise, saturated_pixels
 
     if args.exponent == "fit":
         exponent = "fit"
@@ -405,19 +462,31 @@ def run_noise(args) -> int:
             exponent = float(args.exponent)
         except ValueError:
             raise InputError(f"--exponent must be a number or 'fit', got {args.exponent!r}") from None
-    noload, pressed = _stack(args.noload, "--noload"), _stack(args.pressed, "--pressed")
+    if not (np.isfinite(args.min_signal) and args.min_signal >= 0):
+        raise InputError(f"--min-signal must be a finite number of grey levels >= 0, got {args.min_signal:g}")
+    noload_files, pressed_files = _noise_files(args)
+    noload, pressed = _stack(noload_files, "--noload"), _stack(pressed_files, "--pressed")
     if noload.shape[1:] != pressed.shape[1:]:
         raise InputError(f"--noload frames are {noload.shape[2]}x{noload.shape[1]}, --pressed ones "
                          f"{pressed.shape[2]}x{pressed.shape[1]}: they must be of one camera")
+    if noload.dtype != pressed.dtype and not (noload.dtype.kind == pressed.dtype.kind == "f"):
+        raise InputError(f"--noload frames ({noload_files[0]}) are {noload.dtype} "
+                         f"({8 * noload.dtype.itemsize}-bit), --pressed frames ({pressed_files[0]}) "
+                         f"{pressed.dtype} ({8 * pressed.dtype.itemsize}-bit): record both at one bit depth "
+                         f"and camera setting")
     model = PixelNoise.estimate(noload, pressed, min_signal=args.min_signal, exponent=exponent)
     signal = pressed.mean(axis=0, dtype=np.float64) - noload.mean(axis=0, dtype=np.float64)
+    saturated = saturated_pixels(noload, pressed)
     measured = {"noload": [str(p) for p in args.noload], "pressed": [str(p) for p in args.pressed],
                 "noload_frames": len(noload), "pressed_frames": len(pressed),
                 "min_signal": args.min_signal, "exponent": args.exponent,
-                "pixels_fitted": int(np.count_nonzero(signal > args.min_signal)), "dtype": str(pressed.dtype)}
+                "pixels_fitted": int(np.count_nonzero((signal > args.min_signal) & ~saturated)),
+                "pixels_saturated": int(np.count_nonzero(saturated)), "dtype": str(pressed.dtype)}
     model.save(args.out, measured=measured)
-    print(f"optitact: {measured['pixels_fitted']} lit pixels: conversion gain {model.dn_per_electron:.5g} grey "
-          f"levels per electron (signal^{model.exponent:g}), lit variance {model.lit_variance:.3g}, read noise "
-          f"{model.read_sigma:.3g} grey levels; wrote {args.out}", file=sys.stderr)
+    left_out = f" ({measured['pixels_saturated']} saturated pixels left out)" if saturated.any() else ""
+    print(f"optitact: {measured['pixels_fitted']} lit pixels{left_out}: conversion gain "
+          f"{model.dn_per_electron:.5g} grey levels per electron (signal^{model.exponent:g}), lit variance "
+          f"{model.lit_variance:.3g}, read noise {model.read_sigma:.3g} grey levels; wrote {args.out}",
+          file=sys.stderr)
     print(json.dumps(model.to_dict()))
     return 0

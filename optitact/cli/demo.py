@@ -59,7 +59,12 @@ def add_parsers(sub) -> None:
                     "header) and write it as PNG (or .npy). Output names are checked before "
                     "rendering.")
     rend.add_argument("--forces", type=Path, required=True, metavar="FILE.csv",
-                      help="element-local forces, one row per element")
+                      help="element-local forces, one row per element; with an element column only the "
+                           "loaded elements (the header alone: no load)")
+    rend.add_argument("--setup", type=Path, default=None, metavar="SETUP.json",
+                      help="render the sensor and camera of a setup file (from optitact register: its "
+                           "camera model and pose, element offsets and gains) at the camera's size "
+                           "(--width/--height must match it or be left out)")
     rend.add_argument("--out", type=out_file(".png", ".npy"), required=True, metavar="FRAME.png",
                       help="where to write the frame: .png (lossless, 8 or 16 bit) or .npy; a missing "
                            "folder is created")
@@ -208,20 +213,32 @@ def _noload_baseline(sensor: DomeSensor, camera: FisheyeCamera, ccd: CCD, args, 
                      seconds_per_frame: float) -> np.ndarray:
     """The demo's no-load baseline: NOLOAD_FRAMES cached renders, announced and with a progress bar.
 
-    On a first run each is a full render (``seconds_per_frame``, the loaded
-    frame's time, is the estimate); later runs read them from the cache.
+    Those not in the cache yet are full renders (``seconds_per_frame``, the
+    loaded frame's time, is the estimate), and only they are announced; later
+    runs read them from the cache.
     """
     from tqdm import tqdm
 
-    from optitact._cache import cache_dir, cached_render
+    from optitact._cache import cache_dir, cached_render, render_cache_path
 
-    print(f"optitact: no-load baseline: {NOLOAD_FRAMES} renders at {args.spp} spp, about "
-          f"{NOLOAD_FRAMES * seconds_per_frame:.0f} s on the first run (one render took "
-          f"{seconds_per_frame:.1f} s); cached in {cache_dir() / 'renders'}, so later runs take "
-          f"seconds", file=sys.stderr)
+    zero = np.zeros((sensor.n_elements, 3))
+    todo = sum(not render_cache_path(sensor, zero, camera=camera, spp=args.spp, seed=args.seed + 1 + k,
+                                     variant=args.variant).is_file() for k in range(NOLOAD_FRAMES))
+    where = cache_dir() / "renders"
+    if todo:
+        which = (f"{NOLOAD_FRAMES} renders at {args.spp} spp, about {todo * seconds_per_frame:.0f} s on the "
+                 f"first run" if todo == NOLOAD_FRAMES else
+                 f"{todo} of {NOLOAD_FRAMES} renders at {args.spp} spp still to make, about "
+                 f"{todo * seconds_per_frame:.0f} s")
+        print(f"optitact: no-load baseline: {which} (one render took {seconds_per_frame:.1f} s); cached in "
+              f"{where}, so later runs take seconds", file=sys.stderr)
+    else:
+        print(f"optitact: no-load baseline: {NOLOAD_FRAMES} renders at {args.spp} spp, read from the cache "
+              f"({where})", file=sys.stderr)
     baseline = []
-    for k in tqdm(range(NOLOAD_FRAMES), desc="no-load baseline", unit="frame", file=sys.stderr):
-        empty = cached_render(sensor, np.zeros((sensor.n_elements, 3)), camera=camera,
+    for k in tqdm(range(NOLOAD_FRAMES), desc="no-load baseline", unit="frame", file=sys.stderr,
+                  disable=not todo):
+        empty = cached_render(sensor, zero, camera=camera,
                               spp=args.spp, seed=args.seed + 1 + k, variant=args.variant)
         baseline.append(ccd.expose(empty, seed=args.seed + 1 + k))
     return np.stack(baseline)
@@ -339,9 +356,9 @@ def run_demo(args) -> int:
 def run_render(args) -> int:
     from optitact.io import read_forces_csv, write_npy, write_png
 
-    sensor = DomeSensor.default()
+    sensor, camera = _setup(args, (args.width, args.height) != (640, 480))
     forces = read_forces_csv(args.forces, sensor.n_elements)
-    r = _render_frame(sensor, forces, args)
+    r = _render_frame(sensor, forces, args, camera)
     if args.out.suffix.lower() == ".npy":
         write_npy(args.out, r["frame"])
     else:

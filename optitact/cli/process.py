@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact.camera import Camera, FisheyeCamera, camera_from_dict
+from optitact.camera import Camera, FisheyeCamera
 from optitact.errors import InputError
 from optitact.live import POLICIES
 from optitact.sensor import DomeSensor
 
-from ._args import int_at_least, positive_int
+from ._args import calibration_on_setup, int_at_least, positive_int
 
 __all__ = ["add_parsers"]
 
@@ -115,7 +115,8 @@ def add_parsers(sub) -> None:
                            "for a device or URL)")
     live.add_argument("--view", action="store_true",
                       help="show each frame with the elements and the estimated shear drawn over it (needs a "
-                           "display and an OpenCV with GUI support; q or Esc stops)")
+                           "display and an OpenCV with a GUI: opencv-contrib-python in place of the headless "
+                           "build optitact installs; q or Esc stops)")
     live.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
                       help="stop after N frames (baseline frames included)")
     live.add_argument("--seconds", type=float, default=None, metavar="S",
@@ -125,14 +126,11 @@ def add_parsers(sub) -> None:
 
 
 def read_setup(path: Path) -> tuple[DomeSensor, Camera]:
-    """The sensor and camera of a ``--setup`` JSON file; InputError naming the file otherwise."""
-    from optitact.io import read_json_object
+    """The sensor and camera of a ``--setup`` JSON file (:func:`optitact.read_setup`)."""
+    from optitact.setup import read_setup as read
 
-    setup = read_json_object(path, ("sensor", "camera"), what="setup", writer="optitact register")
-    try:
-        return DomeSensor.from_dict(setup["sensor"]), camera_from_dict(setup["camera"])
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{path}: {exc}") from None
+    setup = read(path)
+    return setup.sensor, setup.camera
 
 
 def _load_baseline(path: Path) -> np.ndarray:
@@ -150,6 +148,24 @@ def _check_out(path: Path | None, option: str) -> None:
                          f"(e.g. {path / ('readings.csv' if option == '--out' else 'plot.png')})")
     if not path.parent.is_dir():
         raise InputError(f"{option} {path}: the folder {path.parent} does not exist (create it first)")
+
+
+def _check_not_inputs(args, files) -> None:
+    """Refuse an output (``--out``, its per-frame and partial tables, ``--plot``) that is an input file."""
+    from optitact.frames import expand_sources
+    from optitact.tables import refuse_overwriting_inputs, table_files
+
+    outputs = {f"--out's {k}" if k != "table" else "--out": v
+               for k, v in table_files(args.out, forces=args.calibration is not None).items()}
+    if args.plot is not None:
+        outputs["--plot"] = args.plot
+    inputs = list(files)
+    for given in (args.setup, args.noise, args.calibration, args.camera):
+        if given is not None:
+            inputs.append(Path(given))
+    if args.baseline is not None:
+        inputs += expand_sources([args.baseline]) if args.baseline.is_dir() else [args.baseline]
+    refuse_overwriting_inputs(outputs, inputs)
 
 
 def _given(args) -> dict:
@@ -181,12 +197,7 @@ def _calibration(args, given: dict, setup):
     if given:
         raise InputError(f"the calibration fixes the pipeline options "
                          f"({cal.pipeline_options}); drop {', '.join(sorted(given))}")
-    if shipped and setup is not None and (cal.sensor != setup[0] or cal.camera != setup[1]):
-        cal = cal.transferred(*setup)
-        print(f"optitact: the shipped calibration is transferred to the setup's sensor and camera "
-              f"({args.setup}: fingerprint {cal.fingerprint}, element gains folded into G)", file=sys.stderr)
-    cal.check(sensor=None if setup is None else setup[0], camera=None if setup is None else setup[1])
-    return cal
+    return calibration_on_setup(cal, setup, shipped=shipped, setup_path=args.setup)
 
 
 def _pipeline(args, given: dict, cal, setup, shape):
@@ -197,7 +208,76 @@ def _pipeline(args, given: dict, cal, setup, shape):
         return cal.pipeline(method=args.method, bits=args.bits)
     sensor, camera = setup if setup is not None else (
         DomeSensor.default(), FisheyeCamera(width=shape[1], height=shape[0], fov_deg=args.fov, z=args.camera_z))
+    _check_filter(given, camera.shape)
     return Pipeline(sensor, camera, method=args.method, bits=args.bits, **given)
+
+
+def _check_options(args) -> None:
+    """The options that need no frame, checked before any is read: numbers in range, extras installed."""
+    import math
+
+    if args.filter_size is not None and not (math.isfinite(args.filter_size) and args.filter_size > 0):
+        raise InputError(f"--filter-size must be a finite number of pixels > 0, got {args.filter_size:g}")
+    if args.dn_per_electron is not None:
+        from optitact.uncertainty import PixelNoise
+
+        try:
+            PixelNoise(args.dn_per_electron)
+        except InputError as exc:
+            raise InputError(f"--dn-per-electron: {exc}") from None
+    if args.plot is not None:
+        from optitact._optional import require
+
+        require("matplotlib.figure", purpose="--plot")
+
+
+def _check_frame_size(args, cal, source: str, shape: tuple[int, ...]) -> None:
+    """Frames (or a ``--baseline``) of ``shape`` (H, W, ...) must be the calibration's; else say what to do."""
+    if cal is None or tuple(shape[:2]) == cal.camera.shape:
+        return
+    from optitact.calib import CalibrationMismatchError
+
+    got, made = f"{source}: the frames are {shape[1]}x{shape[0]}", f"{cal.camera.width}x{cal.camera.height}"
+    if args.setup is not None:
+        raise CalibrationMismatchError(
+            f"{got}, but the setup's camera ({args.setup}) makes {made} frames: give frames of that camera, "
+            f"or register the camera that took these (optitact register ... --out setup.json)")
+    if str(args.calibration) == "default":
+        raise CalibrationMismatchError(
+            f"{got}; the shipped calibration ('default') is for the default camera's {made} frames. For "
+            f"frames of another camera, register it (optitact register NOLOAD.png PRESSED.png... "
+            f"--camera-intrinsics CAM.yml --out setup.json) and add --setup setup.json: the shipped "
+            f"calibration is then transferred to your camera and sensor")
+    raise CalibrationMismatchError(
+        f"{got}; the calibration {args.calibration} (fingerprint {cal.fingerprint}) is for {made} frames of "
+        f"the camera it was made with: give frames of that camera, or calibrate this one (optitact register "
+        f"... --out setup.json, then --calibration default --setup setup.json, or calibrate fit --setup "
+        f"setup.json --start default)")
+
+
+def _check_filter(given: dict, shape: tuple[int, int]) -> None:
+    """``--filter-size``: the filter's window must fit in frames of ``shape`` (H, W)."""
+    import math
+
+    from optitact.steps import filter_radius
+
+    method, size = given.get("filter"), given.get("filter_size")
+    if method not in ("gaussian", "median") or size is None:
+        return
+    side = min(shape)
+    if method == "median":
+        window = size
+    else:  # 3 sigma on each side; a sigma wider than the frame is refused before its kernel is made
+        window = 2 * filter_radius(method, size) + 1 if size <= side else size
+    if window > side:
+        frames = f"the {shape[1]}x{shape[0]} frames' shorter side ({side} px)"
+        if method == "median":
+            raise InputError(f"--filter-size {size}: a median window of {size} px is wider than {frames}; "
+                             f"the filter must fit in the frame (3 or 5 px smooth pixel noise)")
+        most = math.floor((side - 1) // 2 / 3 * 100) / 100
+        raise InputError(f"--filter-size {size:g}: a gaussian of sigma {size:g} px reads 3 sigma on each side, "
+                         f"wider than {frames}; the filter must fit in the frame (sigma at most {most:g} px "
+                         f"here; about 1 px smooths pixel noise)")
 
 
 def _baseline_note(args, baseline) -> tuple[int, str]:
@@ -241,6 +321,7 @@ def run_process(args) -> int:
     cv2.setNumThreads(1)
     _check_out(args.out, "--out")
     _check_out(args.plot, "--plot")
+    _check_options(args)
     if args.camera is not None:
         if args.stderr or args.dn_per_electron is not None or args.noise is not None:
             raise InputError("--stderr, --dn-per-electron and --noise work on recorded frames; a --camera "
@@ -283,13 +364,10 @@ def _process_files(args, files, first, frames) -> int:
     given = _given(args)
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
     cal = _calibration(args, given, setup)
-    if cal is not None and first[1].shape[:2] != cal.camera.shape:
-        from optitact.calib import CalibrationMismatchError
-
-        raise CalibrationMismatchError(
-            f"{first[0]}: the calibration (fingerprint {cal.fingerprint}) is for "
-            f"{cal.camera.width}x{cal.camera.height} frames, got "
-            f"{first[1].shape[1]}x{first[1].shape[0]}")
+    _check_not_inputs(args, files)
+    _check_frame_size(args, cal, first[0], first[1].shape)
+    if baseline is not None:
+        _check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
     pipe = _pipeline(args, given, cal, setup, first[1].shape[:2])
     camera = pipe.camera
     n_base, how = _baseline_note(args, baseline)
@@ -323,10 +401,27 @@ def display_available() -> str | None:
 
     gui = re.search(r"GUI:\s*(\S+)", cv2.getBuildInformation())
     if gui is not None and gui.group(1).upper() == "NONE":
-        return "this OpenCV is built without a GUI (e.g. opencv-python-headless)"
+        return headless_opencv_note()
     if sys.platform.startswith("linux") and not any(os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY")):
         return "no display (DISPLAY and WAYLAND_DISPLAY are not set)"
     return None
+
+
+def headless_opencv_note() -> str:
+    """Why ``--view`` shows nothing with the headless OpenCV optitact installs; how to swap it for a GUI one."""
+    from importlib import metadata
+
+    dists = [d for d in metadata.packages_distributions().get("cv2", []) if "headless" in d.lower()]
+    dist = dists[0] if dists else "opencv-contrib-python-headless"
+    try:
+        pin = f"=={metadata.version(dist)}"
+    except metadata.PackageNotFoundError:
+        pin = ""
+    gui = dist.lower().replace("-headless", "")
+    return (f"this OpenCV ({dist}, which optitact installs) is built without a GUI; for --view, swap it for "
+            f"the build with one: pip uninstall -y {dist} && pip install {gui}{pin} (both install the same "
+            f"cv2: never keep the two, and if a later pip install brings {dist} back, uninstall both and "
+            f"install {gui} again)")
 
 
 class _View:
@@ -415,6 +510,9 @@ def _run_live(args) -> int:
     given = _given(args)
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
     cal = _calibration(args, given, setup)
+    _check_not_inputs(args, [])
+    if baseline is not None:
+        _check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
     built: list = []  # the pipeline in use (for the view)
     if cal is not None or setup is not None:
         pipe = _pipeline(args, given, cal, setup, None)
