@@ -2,22 +2,35 @@
 
 :func:`take_baseline` takes the first frames of a stream as its no-load
 baseline (``optitact process``, :meth:`optitact.Pipeline.stream`, live
-capture). :func:`impulse_floor` is the part of each element's contact floor
-that allows for isolated bright pixels (hot pixels, path-tracing fireflies)
-when the baseline is a single frame (:class:`optitact.Pipeline`).
+capture). :func:`baseline_noise` measures a baseline's noise: the Gaussian
+noise of each pixel, and the isolated bright pixels (hot pixels, path-tracing
+fireflies) that another frame holds at other places; :func:`impulse_floor`
+is the part of each element's contact floor that allows for those
+(:class:`optitact.Pipeline`).
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from ._validate import integer
 from .errors import InputError
+from .steps import (
+    IMPULSE_SIGMAS,
+    impulse_hits,
+    impulses,
+    noise_from_one_frame,
+    noise_from_variance,
+    pooled_variance,
+    temporal_variance,
+)
 
-__all__ = ["IMPULSE_FALSE_CONTACT", "impulse_floor", "take_baseline"]
+__all__ = ["IMPULSE_FALSE_CONTACT", "BaselineNoise", "baseline_noise", "impulse_floor", "take_baseline"]
 
 #: Probability that isolated bright pixels (:func:`~optitact.steps.impulses`) alone lift one
 #: region of one frame above its noise floor.
@@ -63,11 +76,103 @@ def take_baseline(items, n: int, *, frame=None) -> tuple[np.ndarray | None, list
     return np.stack([np.asarray(get(item)) for item in head]), head, rest
 
 
+@dataclass(frozen=True)
+class BaselineNoise:
+    """The noise of ``frame - baseline`` for a no-load baseline (:func:`baseline_noise`).
+
+    Attributes
+    ----------
+    noise : (H, W) float64 ndarray or None
+        Gaussian noise per pixel (grey levels, rms); None when one frame is
+        too small to tell (a warning said so).
+    dof : float
+        Degrees of freedom of ``noise``'s estimate (``math.inf`` for one
+        frame's, estimated from thousands of pixels): the threshold is
+        :func:`~optitact.steps.threshold_sigmas` (k, dof) times it.
+    rate, height : (H, W) float64 ndarrays
+        The isolated bright pixels another frame may hold where ``noise``
+        does not allow for them: per pixel, the fraction of the baseline's
+        frames in which it is one, and its mean height over them (see
+        :func:`~optitact.steps.impulses`); :func:`impulse_floor` turns them
+        into each region's share of the contact floor.
+    """
+
+    noise: np.ndarray | None
+    dof: float
+    rate: np.ndarray
+    height: np.ndarray
+
+
+def baseline_noise(stack: np.ndarray, *, stacklevel: int = 2) -> BaselineNoise:
+    r"""The noise map and the isolated bright pixels of a no-load baseline of any number of frames.
+
+    Parameters
+    ----------
+    stack : (T, H, W) ndarray
+        The baseline (validated; ``T = 1`` for one frame).
+    stacklevel : int
+        Of :func:`~optitact.steps.noise_from_one_frame`'s warning.
+
+    Notes
+    -----
+    Path-traced frames hold fireflies, real frames flickering hot pixels and
+    cosmic rays, each frame at other places: another frame minus the
+    baseline holds about as many, where the baseline's noise map saw none.
+    A variance cannot stand for them (they are heavy-tailed), so the noise
+    map models the Gaussian part and the impulses are counted apart, for
+    one frame and for a stack alike.
+
+    One frame: the noise from its spatial fluctuations
+    (:func:`~optitact.steps.noise_from_one_frame`) and every impulse
+    (:func:`~optitact.steps.impulses`): one frame cannot tell a fixed hot
+    pixel from a passing one.
+
+    A stack of ``T >= 2``: the impulses of each frame
+    (:func:`~optitact.steps.impulse_hits`) that stand above the local
+    Gaussian noise, not just the frame's typical noise (their height above
+    ``IMPULSE_SIGMAS`` times the residual's :math:`\sqrt{3/2}\,\sigma`, with
+    :math:`\sigma` pooled over the neighbours that hold no impulse: a
+    region of the frame much noisier than the rest is noise, not impulses).
+    A pixel that is one in every frame is fixed (a hot pixel): the mean
+    baseline subtracts it, and its own variance, if large, sets its noise.
+    The others' rate is their fraction of the ``T`` frames, a per-frame
+    rate measured ``T`` times over; a pixel that fires often but not in
+    every frame is counted with its rate, an upper bound of how often it
+    lights a new frame above a baseline that holds some of its fires. The
+    noise map (:func:`~optitact.steps.noise_from_stack`) pools the
+    variance over the pixels without impulses.
+    """
+    if len(stack) < 2:
+        rate, height = impulses(stack)  # integer frames: exact integer arithmetic, the same values
+        return BaselineNoise(noise_from_one_frame(stack[0], stacklevel=stacklevel + 1), math.inf, rate, height)
+    t_n = len(stack)
+    var = temporal_variance(stack)
+    hits = []  # each frame's impulses as (flat index, height): a few per thousand pixels
+    for f in stack:
+        hit, height = impulse_hits(f)
+        where = np.flatnonzero(hit)
+        hits.append((where, height.reshape(-1)[where]))
+    found = np.zeros(var.size, bool)
+    for where, _ in hits:
+        found[where] = True
+    sigma = np.sqrt(pooled_variance(var, exclude=found.reshape(var.shape))[0]).reshape(-1)
+    bar = IMPULSE_SIGMAS * math.sqrt(1.5) * sigma
+    count, total = np.zeros(var.size), np.zeros(var.size)
+    for where, height in hits:
+        real = height > bar[where]
+        count[where[real]] += 1.0  # one impulse per pixel and frame: no repeated indices
+        total[where[real]] += height[real]
+    count, total = count.reshape(var.shape), total.reshape(var.shape)
+    moving = (count > 0) & (count < t_n)
+    noise, dof = noise_from_variance(var, t_n, exclude=count > 0)
+    return BaselineNoise(noise, dof, np.where(moving, count / t_n, 0.0), np.where(moving, total / t_n, 0.0))
+
+
 def impulse_floor(impulses: tuple[np.ndarray, np.ndarray] | None, fold) -> np.ndarray:
     """Per region, the G that another frame's impulses may add (0 without impulses).
 
-    ``impulses`` is ``(rate, height)`` of a one-frame baseline
-    (:func:`~optitact.steps.impulses`); ``fold`` the pipeline's
+    ``impulses`` is ``(rate, height)`` of the baseline's impulses
+    (:class:`BaselineNoise`); ``fold`` the pipeline's
     :class:`~optitact.regions.RegionWeights`.
 
     A frame holds about as many isolated bright pixels as the no-load
@@ -77,11 +182,13 @@ def impulse_floor(impulses: tuple[np.ndarray, np.ndarray] | None, fold) -> np.nd
     Poisson count that
     is exceeded with probability :data:`IMPULSE_FALSE_CONTACT` (in a
     region of one frame), each up to the 90th percentile of the
-    impulses' heights, times the region's pixel area. This is
-    conservative where an impulse is a static hot pixel (the baseline
-    subtracts it): a one-frame baseline cannot tell the two apart. Only
-    one-frame baselines get it: a stack's temporal noise map stands for
-    its own frames' impulses.
+    impulses' heights, times the region's pixel area. For a one-frame
+    baseline this is conservative where an impulse is a fixed hot pixel
+    (the baseline subtracts it): one frame cannot tell the two apart. A
+    stack's noise map does not stand for them: it is raised only where its
+    own frames happened to hold one, and a few impulses of 5 grey levels
+    in an element's region of an otherwise dark frame outweigh the
+    Gaussian part of the floor.
     """
     n_regions = len(fold.n_pixels)
     if impulses is None or not impulses[0].any():

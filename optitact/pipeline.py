@@ -41,7 +41,7 @@ import numpy as np
 from . import _kernel
 from ._fastpath import CHUNK_ENTRIES, CHUNK_FRAMES, fast_compiled, fast_numpy, fast_numpy_chunks, thread_count
 from ._fastpath import cores as _cores
-from .baseline import impulse_floor, take_baseline
+from .baseline import baseline_noise, impulse_floor, take_baseline
 from ._validate import integer, positive
 from .camera import Camera
 from .ccd import _frame_bits, dn_ratio
@@ -68,17 +68,16 @@ from .steps import (
     _gaussian_kernel,
     _mean0,
     _saturation_level,
-    _var0,
     add_clipped_tail,
     apply_threshold,
     check_frames,
     denoise,
     estimate_noise,
     filter_radius,
-    impulses,
     noise_from_one_frame,
     readings_from_moments,
     subtract_baseline,
+    threshold_sigmas,
 )
 
 # The steps and the region geometry live in optitact.steps and optitact.regions; they are
@@ -133,10 +132,12 @@ class Pipeline:
         the steps one after another on the whole frame. They compute the
         same sums and agree to floating-point rounding.
     baseline : (H, W) or (T, H, W) array_like, optional
-        No-load frame, or a stack of them: the mean is subtracted, and from
-        two frames on their per-pixel temporal noise raises the threshold
+        No-load frame, or a stack of them: the mean is subtracted, its
+        per-pixel noise (from two frames on, the stack's temporal noise;
+        from one frame, its spatial fluctuations) raises the threshold
         where the background is noisier than ``noise_sigma`` (see
-        ``threshold_map``). None subtracts nothing (for frames that are
+        ``threshold_map``), and its isolated bright pixels raise the
+        noise floor of G. None subtracts nothing (for frames that are
         already background-free). See :meth:`with_baseline`.
     filter : {"none", "gaussian", "median"}
         Denoising before the threshold, default ``"none"``.
@@ -151,7 +152,11 @@ class Pipeline:
     k : float
         Threshold in noise sigmas, default 3: pixels at or below
         ``k * sigma_f`` (``sigma_f``: ``noise_sigma`` after the filter, i.e.
-        times the Gaussian kernel's L2 norm) count as dark.
+        times the Gaussian kernel's L2 norm) count as dark. Where a stack
+        baseline's measured noise is higher, the threshold is as many of its
+        sigmas as let through what ``k`` true sigmas would
+        (:func:`~optitact.steps.threshold_sigmas`: 3.29 for ``k = 3`` from
+        two frames, 3.05 from six).
     min_pixels : float
         Contact needs ``G`` above the region's noise floor: what
         ``min_pixels + n_false + 3 sqrt(n_false)`` independent samples just at
@@ -311,15 +316,19 @@ class Pipeline:
         self.baseline_dtype = None
         self._one_frame = False
         self._impulses = None
+        self._noise_dof = math.inf
         self.baseline, self.noise_map = (None, None) if baseline is None \
             else self._check_baseline(baseline)
         #: Per-pixel threshold (H, W) when there is a baseline whose noise could be measured:
-        #: ``max(threshold, k * noise_map * gain)``; None otherwise.
+        #: ``max(threshold, threshold_sigmas(k, dof) * noise_map * gain)``, ``dof`` the degrees of
+        #: freedom of the noise map (infinite for one frame's; see
+        #: :func:`~optitact.steps.noise_from_stack`); None otherwise.
         if self.noise_map is None:
             self.threshold_map = None
         else:
+            sigmas = threshold_sigmas(self.k, self._noise_dof)
             with np.errstate(over="ignore"):
-                self.threshold_map = np.maximum(self.threshold, self.k * self.noise_map * gain)
+                self.threshold_map = np.maximum(self.threshold, sigmas * self.noise_map * gain)
             if not np.isfinite(self.threshold_map).all():
                 raise InputError(f"k * the baseline's noise must be finite, got k={self.k!r} and a "
                                  f"noise of up to {self.noise_map.max():g} grey levels")
@@ -333,12 +342,14 @@ class Pipeline:
         #: first use (the reference method), never by the fast method.
         self.grids = deferred_grids(sensor, camera, self.region_weights.radius, self.region_weights.grid_mm)
         #: Per-region noise floor of G (grey level x mm^2).
-        # Noise alone lights n Q(k) of a region's n independent samples on average:
-        # the floor adds that count and 3 of its (Poisson) standard deviations.
+        # Gaussian noise alone lights n Q(k) of a region's n independent samples on average (at
+        # most: threshold_sigmas keeps a measured noise map's rate at Q(k)): the floor adds that
+        # count and 3 of its (Poisson) standard deviations. Isolated bright pixels (fireflies,
+        # flickering hot pixels) come on top, at other places in every frame, for a baseline of
+        # any number of frames (impulse_floor).
         n_false = self.region_weights.n_pixels * gain**2 * 0.5 * math.erfc(self.k / math.sqrt(2.0))
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
-        # (impulse_floor imports scipy.special, a quarter second: only for one-frame baselines with impulses)
         impulse_g = (np.zeros(len(fold.n_pixels)) if self._impulses is None or not self._impulses[0].any()
                      else impulse_floor(self._impulses, fold))
         #: Threshold (grey levels) of each entry of :attr:`region_weights`.
@@ -375,14 +386,17 @@ class Pipeline:
     def _check_baseline(self, baseline) -> tuple[np.ndarray, np.ndarray | None]:
         """The baseline's mean and its per-pixel noise (grey levels of ``frame - baseline``).
 
-        From two frames on, the noise map is the temporal standard deviation
-        of the no-load frames, made conservative where it is estimated from
-        few frames (the variance is taken as the largest in each 3 x 3
-        neighbourhood, then smoothed with a Gaussian of 1 pixel), times
-        ``sqrt(1 + 1/T)`` for the noise of the mean. One frame holds no
+        From two frames on, the noise map is the stack's temporal noise of a
+        new frame minus the mean, pooled over a few pixels
+        (:func:`~optitact.steps.noise_from_stack`); its degrees of freedom
+        set how many of its sigmas the threshold is
+        (:func:`threshold_sigmas`), so that a stack of any length lets
+        through the false-alarm rate of ``k`` sigmas. One frame holds no
         temporal noise: :func:`noise_from_one_frame` estimates it from the
         frame's spatial fluctuations, as a function of its grey level (None,
-        with a warning, when it cannot tell).
+        with a warning, when it cannot tell). Either way the baseline's
+        isolated bright pixels that come and go are kept for the noise floor
+        (:func:`~optitact.baseline.baseline_noise`).
         """
         stack, _ = check_frames(baseline, self.camera, "baseline")
         self._check_scale(stack, "baseline")
@@ -390,21 +404,16 @@ class Pipeline:
         frames = stack.astype(np.float64)
         b = _mean0(frames)
         b.flags.writeable = False
-        if len(frames) < 2:
-            self._one_frame = True
-            #: (rate, height) of its isolated bright pixels (see :func:`~optitact.baseline.impulse_floor`).
-            self._impulses = impulses(stack)  # integer frames: exact integer arithmetic, the same values
-            noise = noise_from_one_frame(stack[0], stacklevel=5)
-            if noise is not None:
-                noise.flags.writeable = False
-            return b, noise
-        import cv2
-        from scipy.ndimage import maximum_filter  # a fifth of a second to import: stacks only
-
-        var = maximum_filter(_var0(frames), size=3, mode="nearest")
-        var = cv2.GaussianBlur(var, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT_101)
-        noise = np.sqrt(np.maximum(var, 0.0) * (1.0 + 1.0 / len(frames)))
-        noise.flags.writeable = False
+        self._one_frame = len(frames) < 2
+        # a stack's variance needs float64 (its impulses are the same to the bit); one integer frame
+        # takes the exact integer arithmetic, faster
+        measured = baseline_noise(stack if self._one_frame else frames, stacklevel=5)
+        self._noise_dof = measured.dof
+        #: (rate, height) of its isolated bright pixels (see :func:`~optitact.baseline.impulse_floor`).
+        self._impulses = (measured.rate, measured.height)
+        noise = measured.noise
+        if noise is not None:
+            noise.flags.writeable = False
         return b, noise
 
     def _options(self) -> dict:
