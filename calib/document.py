@@ -5,12 +5,22 @@ executing anything, refusing NaN and infinity), :func:`from_document` checks
 every field of the document and builds the calibration, refusing parameters
 a fit never gives and a fingerprint that does not match the sensor, camera
 and pipeline it names.
+
+Schema versions (``schema_version``):
+
+1. ``elements.u0`` (the zero-shear centroid) optional: written only when a
+   fit found one, and absent from every file written before it existed.
+2. ``elements.u0`` required: an array, or ``null`` when the calibration has
+   none. A version-2 document without it is refused; a version-1 document
+   still loads as version 1 (without ``u0``, its coupled shear curves read
+   ``u0 = 0``, with an :class:`~optitact.errors.OptitactWarning` saying so).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,17 +28,20 @@ import numpy as np
 from optitact._validate import check_keys, check_type
 from optitact.camera import Camera, camera_from_dict
 from optitact.ccd import IntensityScale
-from optitact.errors import InputError
+from optitact.errors import InputError, OptitactWarning
 from optitact.io import json_fingerprint
 from optitact.sensor import DomeSensor
 
-from .curves import G_TERMS, MODELS, g_design
+from .curves import FZ_FLOOR, G_TERMS, MODELS, g_design
 
-__all__ = ["SCHEMA", "SCHEMA_VERSION", "MAX_FILE_BYTES", "PIPELINE_KEYS", "CalibrationMismatchError",
-           "fingerprint", "from_document", "numbers", "read_document"]
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "READ_VERSIONS", "MAX_FILE_BYTES", "PIPELINE_KEYS",
+           "CalibrationMismatchError", "fingerprint", "from_document", "numbers", "read_document"]
 
 SCHEMA = "optitact.calibration"
-SCHEMA_VERSION = 1
+#: The schema version written (see the module docstring for what each version holds).
+SCHEMA_VERSION = 2
+#: The schema versions read.
+READ_VERSIONS = (1, 2)
 #: Largest calibration file read (bytes); a calibration of 41 elements is ~20 kB.
 MAX_FILE_BYTES = 5_000_000
 #: Pipeline options a calibration file may hold.
@@ -112,20 +125,21 @@ def read_document(path: str | os.PathLike):
     return d
 
 
-def from_document(cls, d):
+def from_document(cls, d, *, source: str | os.PathLike | None = None):
     """Build a calibration of class ``cls`` from its JSON document ``d``, validating every field.
 
     This is :meth:`Calibration.from_dict <optitact.calib.Calibration.from_dict>`;
-    its docstring lists what is refused, and with which error.
+    its docstring lists what is refused, and with which error. ``source``
+    (the file the document was read from) names it in warnings.
     """
     if not isinstance(d, dict):
         raise InputError(f"a calibration must be a JSON object, got {type(d).__name__}")
     if d.get("schema") != SCHEMA:
         raise InputError(f"not an optitact calibration (schema {d.get('schema')!r})")
     version = d.get("schema_version")
-    if isinstance(version, bool) or not isinstance(version, int) or version != SCHEMA_VERSION:
+    if isinstance(version, bool) or not isinstance(version, int) or version not in READ_VERSIONS:
         raise InputError(f"calibration schema version {d.get('schema_version')!r} is not "
-                         f"supported (this optitact reads {SCHEMA_VERSION})")
+                         f"supported (this optitact reads {', '.join(map(str, READ_VERSIONS))})")
     for key in ("model", "sensor", "camera", "pipeline", "elements", "fingerprint"):
         if key not in d:
             raise InputError(f"calibration is missing {key!r}")
@@ -153,8 +167,9 @@ def from_document(cls, d):
                  for key, value in d.get("residuals_n", {}).items()}
     if "n" in residuals:  # sample counts: integers, as a fit makes them (and writes them back)
         count = residuals["n"]
-        if np.any(count < 0) or np.any(count != np.round(count)):
-            raise InputError("calibration residuals_n['n'] must hold sample counts (integers >= 0)")
+        if np.any(count < 0) or np.any(count != np.round(count)) or np.any(count >= 2.0**63):
+            raise InputError("calibration residuals_n['n'] must hold sample counts (integers >= 0, "
+                             "below 2**63)")
         residuals["n"] = count.astype(np.int64)
     try:
         intensity = IntensityScale.from_dict(d.get("intensity", {}))
@@ -175,11 +190,23 @@ def from_document(cls, d):
         a.flags.writeable = False
         return a
 
+    if "u0" in el:
+        u0 = None if el["u0"] is None and version >= 2 else arr("u0", (n, 2, 2))
+    elif version >= 2:
+        raise InputError(f"calibration elements are missing 'u0' (the zero-shear centroid, null when there "
+                         f"is none), which schema version {version} requires")
+    else:
+        u0 = None
+        if model == "coupled":
+            warnings.warn(f"{'calibration' if source is None else source}: schema version 1 without "
+                          f"elements.u0 (a file written before the zero-shear centroid was fitted); loaded "
+                          f"as version 1, its shear curves taking u0 = 0. Fit the calibration again to get "
+                          f"it", OptitactWarning, stacklevel=3)
     cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, G_TERMS)),
               arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
               arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
               residuals, dict(d.get("provenance", {})), intensity, _crosstalk(d.get("crosstalk"), sensor),
-              arr("u0", (n, 2, 2)) if "u0" in el else None, _error_model(d.get("error_model")))
+              u0, _error_model(d.get("error_model")))
     if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
         raise InputError("calibration scales must be > 0")
     if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):
@@ -194,11 +221,14 @@ def from_document(cls, d):
         s_top, t_top = cal.g_max / cal.g_scale, cal.u_max / cal.u_scale
         fz_top = g_design(s_top) @ np.ones(G_TERMS) * np.abs(cal.g).max(axis=1) \
             + s_top * t_top * np.abs(cal.gu).sum(axis=1)
-        shear_top = (cal.u_max * fz_top / cal.f[:, 0] if model == "coupled"
+        # the coupled curve reads u - u0(Fz), u0 largest at the Fz floor
+        u0_top = 0.0 if cal.u0 is None else \
+            np.abs(cal.u0[:, 0]).max(axis=1) + np.abs(cal.u0[:, 1]).max(axis=1) / np.sqrt(FZ_FLOOR)
+        shear_top = ((cal.u_max + u0_top) * fz_top / cal.f[:, 0] if model == "coupled"
                      else cal.f[:, 0] * t_top + cal.f[:, 1] * t_top**3)
     if not (np.isfinite(fz_top).all() and np.isfinite(shear_top).all()):
         raise InputError("calibration curves overflow float64 within their fitted range (scales, "
-                         "ranges or coefficients out of proportion)")
+                         "ranges, coefficients or the zero-shear centroid u0 out of proportion)")
     try:
         cal.pipeline()  # the pipeline options must be valid
     except (TypeError, ValueError, ArithmeticError) as exc:

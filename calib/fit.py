@@ -470,7 +470,7 @@ class Calibration:
                 "g": self.g.tolist(), "g_scale": self.g_scale.tolist(), "f": self.f.tolist(),
                 "u_scale": self.u_scale.tolist(), "g_max": self.g_max.tolist(),
                 "u_max": self.u_max.tolist(), "gu": self.gu.tolist(),
-                **({} if self.u0 is None else {"u0": np.asarray(self.u0).tolist()}),
+                "u0": None if self.u0 is None else np.asarray(self.u0).tolist(),
             },
             "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
             "provenance": self.provenance,
@@ -511,6 +511,12 @@ class Calibration:
             scales or ranges, a coupled shear curve that divides by zero).
         CalibrationMismatchError
             The fingerprint does not match the sensor, camera and pipeline.
+
+        Warns
+        -----
+        OptitactWarning
+            A coupled calibration of schema version 1 without ``u0``: it
+            loads as that version, its shear curves taking ``u0 = 0``.
         """
         return from_document(cls, d)
 
@@ -518,6 +524,11 @@ class Calibration:
     def load(cls, path: str | os.PathLike, *, sensor: DomeSensor | None = None,
              camera: Camera | None = None) -> Calibration:
         """Read a calibration JSON file (never executes anything from it).
+
+        A file of an older schema version loads as that version; where that
+        version lacks what the current one holds (schema version 1 without
+        the zero-shear centroid ``u0``) an :class:`~optitact.errors.OptitactWarning`
+        names the file and what the calibration goes without.
 
         Raises
         ------
@@ -527,13 +538,17 @@ class Calibration:
             Not a calibration file that :func:`~optitact.calib.document.read_document`
             reads (a folder, not a regular file, oversized, not JSON), or a
             document :meth:`from_dict` refuses (wrong schema or version,
-            malformed fields).
+            malformed fields, a field its schema version requires missing);
+            the message starts with ``path``.
         CalibrationMismatchError
             ``sensor``/``camera`` given and not the calibration's.
         """
         d = read_document(path)
-        cal = cls.from_dict(d)
-        cal.check(sensor, camera)
+        try:
+            cal = from_document(cls, d, source=path)
+            cal.check(sensor, camera)
+        except InputError as exc:
+            raise type(exc)(f"{path}: {exc}") from None
         return cal
 
 

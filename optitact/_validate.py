@@ -51,12 +51,20 @@ def positive(value, name: str, *, allow_zero: bool = False) -> float:
     """Return ``value`` as a float after checking it is a finite positive number."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
+    bound = ">= 0" if allow_zero else "> 0"
+    v = _float(value, f"{name} must be finite and {bound}")
     ok = v >= 0 if allow_zero else v > 0
     if not np.isfinite(v) or not ok:
-        bound = ">= 0" if allow_zero else "> 0"
         raise InputError(f"{name} must be finite and {bound}, got {value!r}")
     return v
+
+
+def _float(value: numbers.Real, must: str) -> float:
+    """``float(value)``; InputError ``must`` for a number beyond float64 (a huge int or Fraction)."""
+    try:
+        return float(value)
+    except OverflowError:  # its repr may not even be printable (ints beyond 4300 digits)
+        raise InputError(f"{must}, got a number beyond float64 (about 1.8e308)") from None
 
 
 def integer(value, name: str, *, minimum: int | None = None) -> int:
@@ -73,7 +81,7 @@ def real_number(value, name: str) -> float:
     """Return ``value`` as a float after checking it is a finite real number (any sign)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
+    v = _float(value, f"{name} must be finite")
     if not np.isfinite(v):
         raise InputError(f"{name} must be finite, got {value!r}")
     return v

@@ -53,6 +53,16 @@ def _stress_cases(cases: int, seed: int, progress: bool) -> dict:
     return out
 
 
+def _budget(stress: dict) -> dict:
+    """The generated tests' examples: requested, executed, left unspent, and the tests that ran short."""
+    tests = stress.get("tests", {})
+    return {"requested": stress.get("requested", 0),
+            "executed": sum(t["executed"] for t in tests.values()),
+            "unspent": stress.get("unspent", 0),
+            "ran_short": {name: {"allotted": t["allotted"], "executed": t["executed"]}
+                          for name, t in sorted(tests.items()) if t["executed"] < t["allotted"]}}
+
+
 def bench_stability(*, cases: int = 10_000, seed: int = 0, progress: bool = True) -> dict:
     """``optitact bench stability``: the generated stress cases and the full noise study.
 
@@ -61,7 +71,10 @@ def bench_stability(*, cases: int = 10_000, seed: int = 0, progress: bool = True
     cases : int
         Generated stress cases in all, shared among the categories of
         ``tests/stress`` by their weights (pytest runs them in a subprocess
-        with ``OPTITACT_STRESS_CASES=cases``).
+        with ``OPTITACT_STRESS_CASES=cases``). Examples a test leaves unused
+        (its strategies hold fewer distinct values, it filters examples out,
+        or it fails and stops) pass on to the next test, so that the
+        generated tests execute ``cases`` examples in all.
     seed : int
         Seed of the case generator (Hypothesis) and of the sweep's noise.
     progress : bool
@@ -77,7 +90,11 @@ def bench_stability(*, cases: int = 10_000, seed: int = 0, progress: bool = True
         bias, std and efficiency of G and u), ``nominal`` (the level at the
         nominal energy, with ``u_efficiency``), ``spot``, ``flicker`` (the
         contact flag at the noise floor; each check counts as a readings
-        case), ``seconds``, ``seed`` and ``camera`` (of the stress cases).
+        case), ``budget`` (``requested`` and ``executed`` examples of the
+        generated tests, ``unspent``: allotted examples no test used, and
+        ``ran_short``: the tests that executed fewer than they were allotted,
+        with both figures), ``seconds``, ``seed`` and ``camera`` (of the
+        stress cases).
         Without a source checkout ``stress_cases`` says why there are none.
     """
     if isinstance(cases, bool) or not isinstance(cases, int) or cases < 0:
@@ -104,7 +121,7 @@ def bench_stability(*, cases: int = 10_000, seed: int = 0, progress: bool = True
               "noise_sweep": _compact_levels(sw["levels"]),
               "nominal": _compact_level(sw["nominal"]) | {"u_efficiency": sw["nominal"]["u_efficiency"],
                                                           "G_efficiency": sw["nominal"]["G_efficiency"]},
-              "spot": sw["spot"], "flicker": sw["flicker"],
+              "spot": sw["spot"], "flicker": sw["flicker"], "budget": _budget(stress),
               "seconds": {"cases": round(t_cases, 2), "total": round(time.perf_counter() - t0, 2)},
               "seed": seed, "camera": stress.get("camera")}
     for key in ("stress_cases", "pytest_exit_code"):

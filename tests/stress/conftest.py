@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from .helpers import SMALL, Context
-from .strategies import COUNTS, DECLARED, total_cases
+from .strategies import CARRY, COUNTS, DECLARED, TESTS, total_cases
 
 _FAILURES: dict[str, str] = {}
 
@@ -30,4 +30,5 @@ def pytest_sessionfinish(session, exitstatus):
     if path:
         Path(path).write_text(json.dumps({
             "categories": COUNTS, "failures": _FAILURES, "camera": SMALL.to_dict(),
-            "requested": total_cases(), "declared": sum(n for _, _, n in DECLARED.values())}))
+            "requested": total_cases(), "declared": sum(n for _, _, n in DECLARED.values()),
+            "tests": TESTS, "unspent": CARRY["examples"]}))

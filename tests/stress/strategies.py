@@ -6,13 +6,22 @@ The budget is ``OPTITACT_STRESS_CASES`` examples in all (default
 :data:`DEFAULT_CASES`, a quick run); ``optitact bench stability --cases N``
 runs this folder with ``OPTITACT_STRESS_CASES=N``. Runs are reproducible:
 derandomized by default, seeded by ``OPTITACT_STRESS_SEED`` when it is set.
-Every executed example is counted per category (:data:`COUNTS`), and
-``conftest.py`` writes the counts to ``OPTITACT_STRESS_COUNTS`` when set.
+Every executed example is counted per category (:data:`COUNTS`) and per
+generated test (:data:`TESTS`), and ``conftest.py`` writes the counts to
+``OPTITACT_STRESS_COUNTS`` when set.
+
+Hypothesis runs fewer examples than a test's ``max_examples`` when the
+test's strategies have fewer distinct values (a few ``sampled_from``
+choices) or when it filters examples out. The examples a test leaves
+unused pass on to the next generated test that runs (:data:`CARRY`), so the
+session executes its whole budget unless the last tests to run all run
+short (``unspent`` in the counts says how many were left).
 """
 
 from __future__ import annotations
 
 import functools
+import inspect
 import os
 
 import numpy as np
@@ -36,6 +45,11 @@ DEFAULT_CASES = 600
 COUNTS = {cat: {"generated": 0, "passed": 0, "failed": 0} for cat in CATEGORIES}
 #: Each generated test's (category, share, max_examples), by qualified name.
 DECLARED: dict[str, tuple[str, float, int]] = {}
+#: Each generated test that ran: its share of the budget (``declared``), what it was given
+#: (``allotted``: its share plus the examples carried to it) and the examples it ``executed``.
+TESTS: dict[str, dict[str, int]] = {}
+#: Examples allotted to the generated tests that ran but not executed by them, passed on to the next.
+CARRY = {"examples": 0}
 
 
 def total_cases() -> int:
@@ -49,10 +63,19 @@ def stress_seed() -> int | None:
     return None if value in (None, "") else int(value)
 
 
-def counted(category: str):
-    """Count every call of the test (one example) under ``category``, as passed or failed."""
+def counted(category: str, *, into: dict[str, int] | None = None):
+    """Count every call of the test (one example) under ``category``, as passed or failed.
+
+    ``into``: a dict whose ``"executed"`` also counts the calls (one generated test's).
+    """
     if category not in CATEGORIES:
         raise ValueError(f"category must be one of {sorted(CATEGORIES)}, got {category!r}")
+
+    def count(outcome: str) -> None:
+        COUNTS[category]["generated"] += 1
+        COUNTS[category][outcome] += 1
+        if into is not None:
+            into["executed"] += 1
 
     def deco(fn):
         @functools.wraps(fn)
@@ -63,11 +86,9 @@ def counted(category: str):
                 raise
             except BaseException as exc:
                 if type(exc).__name__ not in ("Skipped", "XFailed"):
-                    COUNTS[category]["generated"] += 1
-                    COUNTS[category]["failed"] += 1
+                    count("failed")
                 raise
-            COUNTS[category]["generated"] += 1
-            COUNTS[category]["passed"] += 1
+            count("passed")
             return out
         return wrapper
     return deco
@@ -77,16 +98,38 @@ def stress(category: str, share: float, **strategies):
     """``@given(**strategies)`` with ``share`` of the category's examples, counted.
 
     The shares of a category's tests add up to 1 (``test_budget.py`` checks it).
+    The test is given its share plus the examples carried over from earlier
+    tests (:data:`CARRY`), and passes on what it leaves unused.
     """
     n = max(1, round(total_cases() * CATEGORIES[category] * share))
     s = stress_seed()
 
     def deco(fn):
-        DECLARED[f"{fn.__module__}.{fn.__qualname__}"] = (category, share, n)
-        test = given(**strategies)(counted(category)(fn))
-        test = settings(max_examples=n, deadline=None, derandomize=s is None, database=None,
-                        suppress_health_check=list(HealthCheck), print_blob=False)(test)
-        return test if s is None else seed(s)(test)
+        name = f"{fn.__module__}.{fn.__qualname__}"
+        DECLARED[name] = (category, share, n)
+        tally = {"declared": n, "allotted": 0, "executed": 0}
+        body = counted(category, into=tally)(fn)
+
+        def hypothesis_test(max_examples: int):
+            # built per call: Hypothesis takes one settings object per test function
+            test = settings(max_examples=max_examples, deadline=None, derandomize=s is None, database=None,
+                            suppress_health_check=list(HealthCheck),
+                            print_blob=False)(given(**strategies)(body))
+            return test if s is None else seed(s)(test)
+
+        def test(*args, **kwargs):
+            allotted = n + CARRY["examples"]
+            before = tally["executed"]
+            tally["allotted"] += allotted
+            TESTS[name] = tally
+            try:
+                hypothesis_test(allotted)(*args, **kwargs)
+            finally:
+                CARRY["examples"] = max(0, allotted - (tally["executed"] - before))
+
+        functools.update_wrapper(test, fn)
+        test.__signature__ = inspect.signature(given(**strategies)(fn))  # the fixtures pytest passes
+        return test
     return deco
 
 

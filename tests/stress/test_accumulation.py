@@ -71,14 +71,19 @@ def test_big_batches_read_bit_for_bit_as_frame_by_frame(ctx):
 
 @stress("accumulation", SHARE["baseline_mean"], t_n=st.integers(2, 400), offset_exp=st.floats(0, 8), seed=seeds)
 def test_baseline_mean_is_exact_to_rounding(t_n, offset_exp, seed):
-    """The baseline mean of T float frames: within 2 ulp of math.fsum / T, for offsets up to 1e8."""
+    """The baseline mean of T float frames: within 2 ulp of math.fsum / T, for offsets up to 1e8, whatever T.
+
+    Plus the rounding of the frames' deviations from the mean (one ulp of the largest): where
+    they cancel to a mean much smaller than the frames (offset 1, noise 1), that rounding is
+    many ulps of the mean, and only an exact sum would do better.
+    """
     rng = rng_of(seed)
     stack = 10**offset_exp + rng.normal(0.0, 1.0, (t_n,) + TINY.shape)
     b = Pipeline(SENSOR, TINY, baseline=stack).baseline.reshape(-1)
     flat = stack.reshape(t_n, -1)
     for p in rng.integers(0, flat.shape[1], 40):
         exact = math.fsum(flat[:, p].tolist()) / t_n
-        assert abs(b[p] - exact) <= 2 * np.spacing(abs(exact))
+        assert abs(b[p] - exact) <= 2 * np.spacing(abs(exact)) + np.spacing(np.abs(flat[:, p] - exact).max())
 
 
 def _offset_stack(args):

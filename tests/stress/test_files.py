@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from hypothesis import strategies as st
 
 from optitact.calib import Calibration, CalibrationMismatchError
 from optitact.camera import FisheyeCamera
-from optitact.errors import InputError
+from optitact.errors import InputError, OptitactWarning
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
@@ -103,7 +104,7 @@ def test_broken_calibration_files_load_right_or_fail_clearly(cal_doc, tmp_path_f
         with pytest.raises(InputError, match="not a JSON calibration"):
             load()
     elif kind == "wrong_version":
-        doc["schema_version"] = [0, 2, "1", None, True, 1.5, [1]][int(rng.integers(7))]
+        doc["schema_version"] = [0, 3, -1, "2", None, True, 1.5, [2]][int(rng.integers(8))]
         path.write_text(json.dumps(doc))
         with pytest.raises(InputError, match="schema version"):
             load()
@@ -122,8 +123,10 @@ def test_broken_calibration_files_load_right_or_fail_clearly(cal_doc, tmp_path_f
         path.write_text(json.dumps(doc))
         try:
             back = load()
-        except (InputError, CalibrationMismatchError) as exc:
-            assert str(exc), "an error without a message"
+        except (InputError, CalibrationMismatchError) as exc:  # the current version: every field it needs
+            assert str(exc).startswith(f"{path}: "), f"the error does not name the file: {exc}"
+            if p[0] == "elements" or p in (("model",), ("fingerprint",), ("elements",)):
+                assert repr(p[-1]) in str(exc), f"the error does not name the missing {p[-1]!r}: {exc}"
         else:  # a sensor or camera key equal to its default may go: the result must be the same
             assert len(p) == 2 and p[0] in ("sensor", "camera") and back.sensor == cal.sensor \
                 and back.camera == cal.camera, f"a calibration without {p} loaded as another calibration"
@@ -144,6 +147,43 @@ def test_broken_calibration_files_load_right_or_fail_clearly(cal_doc, tmp_path_f
         path.write_text(json.dumps(doc))
         with pytest.raises((CalibrationMismatchError, InputError)):
             load()
+
+
+@counted("calibration_file")
+@pytest.mark.parametrize("model", ["coupled", "ohka"])
+def test_calibration_files_of_schema_version_1_load_as_version_1(cal_doc, tmp_path, model):
+    """Version 1 held u0 only when a fit found one (and files before it none): such files load, and a
+    coupled one without u0 says that its shear curves go without; version 2 needs u0, null or not."""
+    cal, doc = cal_doc
+    assert doc["schema_version"] == 2 and doc["model"] == "coupled" and cal.u0 is not None
+    path = tmp_path / "c.json"
+    old = json.loads(json.dumps(doc)) | {"schema_version": 1}
+    path.write_text(json.dumps(old))
+    back = Calibration.load(path)  # version 1 with u0: the same calibration, no warning
+    np.testing.assert_array_equal(back.u0, cal.u0)
+    del old["elements"]["u0"]
+    old["model"] = model
+    path.write_text(json.dumps(old))
+    if model == "coupled":
+        with pytest.warns(OptitactWarning, match=rf"^{re.escape(str(path))}: schema version 1 without "
+                                                 rf"elements\.u0 .* u0 = 0"):
+            back = Calibration.load(path)
+    else:  # ohka's shear curves have no u0: nothing goes missing
+        back = Calibration.load(path)
+    assert back.u0 is None and back.fingerprint == cal.fingerprint
+    new = json.loads(json.dumps(doc))
+    new["elements"]["u0"] = None
+    path.write_text(json.dumps(new))
+    assert Calibration.load(path).u0 is None
+    del new["elements"]["u0"]
+    path.write_text(json.dumps(new))
+    with pytest.raises(InputError, match=rf"^{re.escape(str(path))}: calibration elements are missing 'u0' "
+                                         rf".* schema version 2 requires"):
+        Calibration.load(path)
+    old["elements"]["u0"] = None  # version 1 never wrote null
+    path.write_text(json.dumps(old))
+    with pytest.raises(InputError, match=r"elements\['u0'\] must hold numbers"):
+        Calibration.load(path)
 
 
 @counted("calibration_file")
@@ -231,13 +271,17 @@ def test_calibration_files_never_execute_anything(tmp_path):
     (lambda d: d["pipeline"].update(baseline=[0]), InputError, r"unknown option\(s\) \['baseline'\]"),
     (lambda d: d.update(provenance="x"), InputError, "'provenance' must be an object, got str"),
     (lambda d: d.update(residuals_n={"fz": ["a"]}), InputError, r"residuals_n\['fz'\] must hold numbers"),
+    (lambda d: d["residuals_n"].update(n=[1e308]), InputError, r"residuals_n\['n'\] must hold sample counts"),
     (lambda d: d["elements"]["g"][0].__setitem__(1, -1.0), InputError, "g coefficients must be >= 0"),
     (lambda d: d["elements"]["f"][0].__setitem__(0, 0.0), InputError, "a > 0 and b >= 0"),
     (lambda d: d["elements"].update(u_max=[-1.0]), InputError, "g_max and u_max must be > 0"),
     (lambda d: d["elements"].update(g_scale=[1e-300]), InputError, "overflow float64 within their fitted"),
+    (lambda d: d["elements"]["u0"][0][1].__setitem__(0, 1e308), InputError, "zero-shear centroid u0 out of"),
     (lambda d: d["elements"].update(g_max=[10**400]), InputError,
          r"elements\['g_max'\] must be a regular array of numbers within float64"),
     (lambda d: d["sensor"].update(outer_radius=10**400), InputError, "'sensor' is not a valid sensor"),
+    (lambda d: d["intensity"].update(gain=10**400), InputError,
+         r"not a valid intensity scale: gain must be finite and > 0, got a number beyond float64"),
     (lambda d: d["sensor"].update(ring_counts=5), InputError, "'sensor' is not a valid sensor"),
     (lambda d: d["camera"].update(width="wide"), InputError, "'camera' is not a valid camera"),
     (lambda d: d["pipeline"].update(noise_sigma=10**400), InputError, "'pipeline' options are not valid"),
