@@ -58,6 +58,16 @@ SKIPPED = {
     "optitact calibrate fit dome41.zarr --joint --validation val.zarr --out calib/data/dome41.json "
     "--plot fit.png": "overwrites the shipped calibration, from the sets above",
     "optitact experiment finger --full --plot finger.png": "the full finger study (minutes)",
+    **{line: "the own-sensor workflow: tests/test_workflows.py runs these lines as typed, each a new "
+             "process, on a rendered stand-in's files (a recording for --camera 0)" for line in (
+        "optitact register noload.png reg_*.png --camera-intrinsics cam.yml --fit-offsets --out setup.json",
+        "optitact process presses/ --setup setup.json --calibration default --out forces.csv",
+        "optitact calibrate fit --frames presses/ --forces gauge.csv --setup setup.json --start default "
+        "--out mysensor.json",
+        "optitact calibrate test --frames held/ --forces held.csv --calibration default --setup setup.json",
+        "optitact calibrate test --frames held/ --forces held.csv --calibration mysensor.json "
+        "--plot errors.png",
+        "optitact process --camera 0 --calibration mysensor.json --out live.csv")},
 }
 
 FENCE = re.compile(r"^(?P<indent> *)```(?P<lang>\w*)\s*$")
