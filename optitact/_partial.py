@@ -23,7 +23,8 @@ import numpy as np
 from ._optional import require
 from .errors import InputError
 
-__all__ = ["OutputLock", "PartialCSV", "PartialParquet", "pid_alive", "remove_stray_partials"]
+__all__ = ["OutputLock", "PartialCSV", "PartialParquet", "keep_earlier_partial", "pid_alive",
+           "remove_stray_partials"]
 
 
 def pid_alive(pid: int) -> bool:
@@ -64,6 +65,36 @@ def remove_stray_partials(path: Path) -> list[Path]:
                 os.unlink(entry.path)
                 removed.append(Path(entry.path))
     return removed
+
+
+def keep_earlier_partial(path: Path) -> Path | None:
+    """Move aside the rows an earlier run left in a visible partial file, before a new run writes it.
+
+    A stream killed, or stopped by a full disk, leaves its rows in ``NAME.partial.csv``; the next
+    run of the same output would start that file afresh. The earlier rows are kept as
+    ``NAME.partial.earlier-YYYYmmddTHHMMSS.csv`` (the file's modification time; a counter where
+    that name is taken), with an :class:`~optitact.errors.OptitactWarning` naming it. Call it with
+    the output's lock held. Returns the new name, or None when there was nothing to keep.
+    """
+    import warnings
+
+    from .errors import OptitactWarning
+
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    if st.st_size == 0:
+        return None
+    stamp = time.strftime("%Y%m%dT%H%M%S", time.localtime(st.st_mtime))
+    for k in range(1000):
+        kept = path.with_name(f"{path.stem}.earlier-{stamp}{'' if k == 0 else f'-{k}'}{path.suffix}")
+        if not kept.exists():
+            break
+    os.replace(path, kept)
+    warnings.warn(f"{path} held the rows of an earlier run that did not finish: kept as {kept.name}",
+                  OptitactWarning, stacklevel=3)
+    return kept
 
 
 def _read_pid(fd: int) -> int | None:
@@ -190,6 +221,8 @@ class PartialCSV:
         self.shown = self.path if tmp is None else tmp
         #: Bytes written whole so far.
         self.size = 0
+        #: Where the rows of an earlier run that did not finish were kept (None: there were none).
+        self.kept = keep_earlier_partial(tmp) if tmp is not None else None
         try:
             self.fh = self.tmp.open("wb", buffering=0)
         except OSError as exc:

@@ -249,3 +249,26 @@ def test_demo_announces_only_the_renders_it_will_make(user, monkeypatch):
     line = next(x for x in r.stderr.splitlines() if x.startswith("optitact: no-load baseline:"))
     assert "4 renders at 4 spp, read from the cache" in line and "about" not in line
     assert user.path("demo/estimated_forces.csv").is_file()
+
+
+def test_a_filter_size_without_a_filter_is_refused(user):
+    np.save(user.path("f.npy"), np.zeros((2, 48, 64), np.uint8))
+    r = user.run("process", "f.npy", "--filter-size", "2", "--out", "r.csv")
+    assert r.returncode == 2 and "--filter-size 2 sizes a filter: add --filter gaussian" in r.stderr
+    assert not user.path("r.csv").exists()
+
+
+def test_a_bad_noise_file_is_named_before_any_frame_is_read(user):
+    """The frames do not exist: a run that read them first would name them, not the noise file."""
+    user.path("noise.json").write_text('{"dn_per_electron": -1}')
+    r = user.run("process", "missing.npy", "--calibration", "default", "--stderr", "--noise", "noise.json",
+                 "--out", "r.csv")
+    assert r.returncode == 2 and "noise.json" in r.stderr and "missing.npy" not in r.stderr, r.stderr
+
+
+def test_calibrate_test_on_frames_of_another_camera_says_how_to_use_them(user):
+    np.save(user.path("f.npy"), np.zeros((3, 240, 320), np.uint8))
+    user.path("g.csv").write_text("frame,element,fx,fy,fz\n1,0,0,0,0.5\n")
+    r = user.run("calibrate", "test", "--frames", "f.npy", "--forces", "g.csv", "--calibration", "default")
+    assert r.returncode == 2
+    assert "320x240" in r.stderr and "640x480" in r.stderr and "--setup setup.json" in r.stderr, r.stderr

@@ -195,6 +195,19 @@ def test_live_rows_carry_the_capture_time(user):
     assert pd.to_datetime(table["wall_time"]).dt.tz is not None
 
 
+def test_a_new_stream_keeps_the_rows_a_killed_one_left(user):
+    """The visible partial table of a stream that did not finish is moved aside, not written over."""
+    _video(user.path("clip.avi"), 3)
+    earlier = "frame,source,element\r\n0,cam,0\r\n"
+    user.path("live.partial.csv").write_text(earlier, newline="")
+    r = user.run("process", "--camera", "clip.avi", "--out", "live.csv", cached=True)
+    assert r.returncode == 0, r.stderr
+    kept = list(user.folder.glob("live.partial.earlier-*.csv"))
+    assert len(kept) == 1 and kept[0].read_bytes().decode() == earlier
+    assert f"kept as {kept[0].name}" in r.stderr and "optitact: warning:" in r.stderr
+    assert len(_rows(user.path("live.csv"))) == 1 + 3 * N_EL and not user.path("live.partial.csv").exists()
+
+
 def _png(path, seed: int) -> bytes:
     assert cv2.imwrite(str(path), _frames(1, seed)[0])
     return path.read_bytes()

@@ -176,3 +176,30 @@ def calibration_on_setup(cal, setup, *, shipped: bool, setup_path):
               f"({setup_path}: fingerprint {cal.fingerprint}, element gains folded into G)", file=sys.stderr)
     cal.check(sensor=sensor, camera=camera)
     return cal
+
+
+def check_frame_size(args, cal, source: str, shape: tuple[int, ...]) -> None:
+    """Frames (or a ``--baseline``) of ``shape`` (H, W, ...) must be the calibration's; else say what to do.
+
+    ``args`` has the command's ``calibration`` and ``setup`` (``process``, ``calibrate test``).
+    """
+    if cal is None or tuple(shape[:2]) == cal.camera.shape:
+        return
+    from optitact.calib import CalibrationMismatchError
+
+    got, made = f"{source}: the frames are {shape[1]}x{shape[0]}", f"{cal.camera.width}x{cal.camera.height}"
+    if args.setup is not None:
+        raise CalibrationMismatchError(
+            f"{got}, but the setup's camera ({args.setup}) makes {made} frames: give frames of that camera, "
+            f"or register the camera that took these (optitact register ... --out setup.json)")
+    if str(args.calibration) == "default":
+        raise CalibrationMismatchError(
+            f"{got}; the shipped calibration ('default') is for the default camera's {made} frames. For "
+            f"frames of another camera, register it (optitact register NOLOAD.png PRESSED.png... "
+            f"--camera-intrinsics CAM.yml --out setup.json) and add --setup setup.json: the shipped "
+            f"calibration is then transferred to your camera and sensor")
+    raise CalibrationMismatchError(
+        f"{got}; the calibration {args.calibration} (fingerprint {cal.fingerprint}) is for {made} frames of "
+        f"the camera it was made with: give frames of that camera, or calibrate this one (optitact register "
+        f"... --out setup.json, then --calibration default --setup setup.json, or calibrate fit --setup "
+        f"setup.json --start default)")

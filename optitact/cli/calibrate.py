@@ -9,8 +9,8 @@ import numpy as np
 
 from optitact.errors import InputError
 
-from ._args import calibration_on_setup, image_size_parent, int_at_least, out_file, pattern_choices, \
-    plot_parent, positive_int, render_mode_choices, seed_parent, spp_parent, variant_parent
+from ._args import calibration_on_setup, check_frame_size, image_size_parent, int_at_least, out_file, \
+    pattern_choices, plot_parent, positive_int, render_mode_choices, seed_parent, spp_parent, variant_parent
 
 __all__ = ["add_parsers"]
 
@@ -365,6 +365,7 @@ def run_test(args) -> int:
         cal = calibration_on_setup(cal, (setup.sensor, setup.camera),
                                    shipped=str(args.calibration) == "default", setup_path=args.setup)
     base, n_base = _baseline(args)
+    _check_sizes(args, cal, base)
     p = measure_presses(args.frames, args.forces, pipeline=cal.pipeline(), baseline=base,
                         baseline_frames=n_base, progress=True)
     rep = press_report(cal, p.readings, p.forces, p.pressed)
@@ -409,6 +410,19 @@ def run_test(args) -> int:
     for line in lines:
         print(f"optitact: {line}", file=sys.stderr)
     return 0
+
+
+def _check_sizes(args, cal, baseline) -> None:
+    """The presses' first frame (and a --baseline) must be of the calibration's camera; else what to do."""
+    from optitact.frames import expand_sources, iter_frames
+
+    frames = iter_frames(expand_sources(args.frames))
+    first = next(frames, None)
+    frames.close()  # one frame read: a video is released at once
+    if first is not None:
+        check_frame_size(args, cal, first[0], first[1].shape)
+    if baseline is not None:
+        check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
 
 
 def _stack(files: list[Path], option: str) -> np.ndarray:

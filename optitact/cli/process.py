@@ -14,7 +14,7 @@ from optitact.errors import InputError
 from optitact.live import POLICIES
 from optitact.sensor import DomeSensor
 
-from ._args import calibration_on_setup, int_at_least, positive_int
+from ._args import calibration_on_setup, check_frame_size, int_at_least, positive_int
 
 __all__ = ["add_parsers"]
 
@@ -218,6 +218,15 @@ def _check_options(args) -> None:
 
     if args.filter_size is not None and not (math.isfinite(args.filter_size) and args.filter_size > 0):
         raise InputError(f"--filter-size must be a finite number of pixels > 0, got {args.filter_size:g}")
+    if args.filter_size is not None and args.filter in (None, "none"):
+        raise InputError(f"--filter-size {args.filter_size:g} sizes a filter: add --filter gaussian (sigma, px) "
+                         f"or --filter median (window, px); without one it would be ignored")
+    if args.stderr and args.calibration is None:
+        raise InputError("--stderr gives the forces' standard errors: it needs --calibration")
+    if args.noise is not None and args.stderr:
+        from optitact.uncertainty import PixelNoise
+
+        PixelNoise.load(args.noise)  # a bad noise file is named before any frame is read
     if args.dn_per_electron is not None:
         from optitact.uncertainty import PixelNoise
 
@@ -229,30 +238,6 @@ def _check_options(args) -> None:
         from optitact._optional import require
 
         require("matplotlib.figure", purpose="--plot")
-
-
-def _check_frame_size(args, cal, source: str, shape: tuple[int, ...]) -> None:
-    """Frames (or a ``--baseline``) of ``shape`` (H, W, ...) must be the calibration's; else say what to do."""
-    if cal is None or tuple(shape[:2]) == cal.camera.shape:
-        return
-    from optitact.calib import CalibrationMismatchError
-
-    got, made = f"{source}: the frames are {shape[1]}x{shape[0]}", f"{cal.camera.width}x{cal.camera.height}"
-    if args.setup is not None:
-        raise CalibrationMismatchError(
-            f"{got}, but the setup's camera ({args.setup}) makes {made} frames: give frames of that camera, "
-            f"or register the camera that took these (optitact register ... --out setup.json)")
-    if str(args.calibration) == "default":
-        raise CalibrationMismatchError(
-            f"{got}; the shipped calibration ('default') is for the default camera's {made} frames. For "
-            f"frames of another camera, register it (optitact register NOLOAD.png PRESSED.png... "
-            f"--camera-intrinsics CAM.yml --out setup.json) and add --setup setup.json: the shipped "
-            f"calibration is then transferred to your camera and sensor")
-    raise CalibrationMismatchError(
-        f"{got}; the calibration {args.calibration} (fingerprint {cal.fingerprint}) is for {made} frames of "
-        f"the camera it was made with: give frames of that camera, or calibrate this one (optitact register "
-        f"... --out setup.json, then --calibration default --setup setup.json, or calibrate fit --setup "
-        f"setup.json --start default)")
 
 
 def _check_filter(given: dict, shape: tuple[int, int]) -> None:
@@ -365,9 +350,9 @@ def _process_files(args, files, first, frames) -> int:
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
     cal = _calibration(args, given, setup)
     _check_not_inputs(args, files)
-    _check_frame_size(args, cal, first[0], first[1].shape)
+    check_frame_size(args, cal, first[0], first[1].shape)
     if baseline is not None:
-        _check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
+        check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
     pipe = _pipeline(args, given, cal, setup, first[1].shape[:2])
     camera = pipe.camera
     n_base, how = _baseline_note(args, baseline)
@@ -512,7 +497,7 @@ def _run_live(args) -> int:
     cal = _calibration(args, given, setup)
     _check_not_inputs(args, [])
     if baseline is not None:
-        _check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
+        check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
     built: list = []  # the pipeline in use (for the view)
     if cal is not None or setup is not None:
         pipe = _pipeline(args, given, cal, setup, None)
