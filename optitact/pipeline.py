@@ -317,6 +317,7 @@ class Pipeline:
         self._one_frame = False
         self._impulses = None
         self._noise_dof = math.inf
+        self._baseline_frames = 0
         self.baseline, self.noise_map = (None, None) if baseline is None \
             else self._check_baseline(baseline)
         #: Per-pixel threshold (H, W) when there is a baseline whose noise could be measured:
@@ -351,7 +352,7 @@ class Pipeline:
         samples = self.min_pixels + n_false + 3.0 * np.sqrt(n_false)
         fold = self.region_weights
         impulse_g = (np.zeros(len(fold.n_pixels)) if self._impulses is None or not self._impulses[0].any()
-                     else impulse_floor(self._impulses, fold))
+                     else impulse_floor(self._impulses, fold, frames=self._baseline_frames))
         #: Threshold (grey levels) of each entry of :attr:`region_weights`.
         if self.threshold_map is None:
             self.entry_threshold = np.full(len(fold.pixel), self.threshold)
@@ -405,6 +406,7 @@ class Pipeline:
         b = _mean0(frames)
         b.flags.writeable = False
         self._one_frame = len(frames) < 2
+        self._baseline_frames = len(frames)
         # a stack's variance needs float64 (its impulses are the same to the bit); one integer frame
         # takes the exact integer arithmetic, faster
         measured = baseline_noise(stack if self._one_frame else frames, stacklevel=5)

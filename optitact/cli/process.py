@@ -219,8 +219,8 @@ def _check_options(args) -> None:
     if args.filter_size is not None and not (math.isfinite(args.filter_size) and args.filter_size > 0):
         raise InputError(f"--filter-size must be a finite number of pixels > 0, got {args.filter_size:g}")
     if args.filter_size is not None and args.filter in (None, "none"):
-        raise InputError(f"--filter-size {args.filter_size:g} sizes a filter: add --filter gaussian (sigma, px) "
-                         f"or --filter median (window, px); without one it would be ignored")
+        raise InputError(f"--filter-size {args.filter_size:g} sizes a filter: add --filter gaussian (sigma, "
+                         f"px) or --filter median (window, px); without one it would be ignored")
     if args.stderr and args.calibration is None:
         raise InputError("--stderr gives the forces' standard errors: it needs --calibration")
     if args.noise is not None and args.stderr:
