@@ -76,7 +76,7 @@ BENCH = textwrap.dedent('''
         f = np.zeros((n, 3)); f[list(els), 2] = REGISTRATION_FORCE_N
         cv2.imwrite(f"reg_{k}.png", frame(f, 10 + k))
     truth = {"position": camera.position.tolist(), "rotation": camera.rotation.tolist()}
-    if KIND == "pinhole":
+    if sys.argv[2:] != ["presses"]:
         json.dump(truth, open("truth.json", "w"))
         sys.exit()
 
@@ -108,9 +108,10 @@ BENCH = textwrap.dedent('''
 ''')
 
 
-def _bench(user, kind: str) -> dict:
+def _bench(user, kind: str, *what: str) -> dict:
+    """Run the bench script: registration frames and camera files (``"presses"``: gauge frames too)."""
     user.path("bench.py").write_text(BENCH)
-    r = user.python(f"import sys; sys.argv = ['bench.py', {kind!r}]; exec(open('bench.py').read())")
+    r = user.python(f"import sys; sys.argv = ['bench.py', {kind!r}, *{what!r}]; exec(open('bench.py').read())")
     assert r.returncode == 0, r.stderr
     return json.loads(user.path("truth.json").read_text())
 
@@ -141,7 +142,7 @@ def test_own_sensor_workflow_from_an_opencv_fisheye_file(user):
     for ``--camera 0``): register (cv2.fisheye.calibrate's YAML, no model key) -> process --setup ->
     calibrate fit --setup --start default (gauge in mN) -> calibrate test (shipped, transferred; then
     the fit) -> process --camera: every step a new process, each reading the previous one's file."""
-    truth = _bench(user, "fisheye")
+    truth = _bench(user, "fisheye", "presses")
     regs = sorted(p.name for p in user.folder.glob("reg_*.png"))
     reg = _ok(user.run("register", "noload.png", *regs, "--camera-intrinsics", "cam.yml", "--fit-offsets",
                        "--out", "setup.json"))
@@ -184,29 +185,30 @@ def test_own_sensor_workflow_from_an_opencv_fisheye_file(user):
     assert rmse < 0.04 * clip[..., 2].max(), rmse  # within 4 % of full scale, as calibrate test says
 
 
-@pytest.mark.parametrize("kind, intrinsics, model", [
-    ("fisheye", "ost.yaml", "opencv_fisheye"),        # ROS camera_info, distortion_model: equidistant
-    ("fisheye", "camchain.yaml", "opencv_fisheye"),   # Kalibr camchain, pinhole-equidistant
-    ("pinhole", "cam.yml", "pinhole"),                # cv2.calibrateCamera's 5 coefficients
-    ("pinhole", "camchain.yaml", "pinhole"),          # Kalibr, pinhole-radtan
+@pytest.mark.parametrize("kind, files, model", [
+    # a ROS camera_info (distortion_model: equidistant) and a Kalibr camchain (pinhole-equidistant)
+    ("fisheye", ("ost.yaml", "camchain.yaml"), "opencv_fisheye"),
+    # cv2.calibrateCamera's YAML (5 coefficients, no model key) and a Kalibr camchain (pinhole-radtan)
+    ("pinhole", ("cam.yml", "camchain.yaml"), "pinhole"),
 ])
-def test_register_from_each_camera_file_then_process(user, kind, intrinsics, model):
+def test_register_from_each_camera_file_then_process(user, kind, files, model):
     """Each file a calibration tool writes registers the stand-in, and the setup reads in a new process."""
-    truth = _bench(user, kind)
-    reg = _ok(user.run("register", "noload.png", *[f"reg_{k}.png" for k in range(6)],
-                       "--camera-intrinsics", intrinsics, "--fit-offsets", "--out", "setup.json"))
-    setup = json.loads(user.path("setup.json").read_text())
-    assert setup["camera"]["model"] == model
-    dp, angle = _pose_error(setup, truth)
-    assert dp < 0.3 and angle < 0.6, reg.stderr
-    _ok(user.run("process", "reg_0.png", "--baseline", "noload.png", "--setup", "setup.json",
-                 "--calibration", "default", "--out", "forces.csv"))
-    rows = _table(user.path("forces.csv"))
-    pressed = {int(r["element"]): float(r["fz"]) for r in rows}
     from optitact.studies.bench_realism import REGISTRATION_FORCE_N, REGISTRATION_PRESSES
 
-    fz = np.array([pressed[e] for e in REGISTRATION_PRESSES[0]])
-    np.testing.assert_allclose(fz, REGISTRATION_FORCE_N, rtol=0.15)
+    truth = _bench(user, kind)
+    regs = sorted(p.name for p in user.folder.glob("reg_*.png"))
+    for intrinsics in files:
+        reg = _ok(user.run("register", "noload.png", *regs, "--camera-intrinsics", intrinsics, "--fit-offsets",
+                           "--out", "setup.json"))
+        setup = json.loads(user.path("setup.json").read_text())
+        assert setup["camera"]["model"] == model, intrinsics
+        dp, angle = _pose_error(setup, truth)
+        assert dp < 0.3 and angle < 0.6, (intrinsics, reg.stderr)
+        _ok(user.run("process", "reg_0.png", "--baseline", "noload.png", "--setup", "setup.json",
+                     "--calibration", "default", "--out", "forces.csv"))
+        fz = {int(r["element"]): float(r["fz"]) for r in _table(user.path("forces.csv"))}
+        np.testing.assert_allclose([fz[e] for e in REGISTRATION_PRESSES[0]], REGISTRATION_FORCE_N, rtol=0.15,
+                                   err_msg=intrinsics)
 
 
 def test_calibrate_generate_fit_process(user):
