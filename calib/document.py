@@ -35,7 +35,8 @@ from optitact.sensor import DomeSensor
 from .curves import FZ_FLOOR, G_TERMS, MODELS, g_design
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "READ_VERSIONS", "MAX_FILE_BYTES", "PIPELINE_KEYS",
-           "CalibrationMismatchError", "fingerprint", "from_document", "numbers", "read_document"]
+           "STACK_NOISE_UNNAMED", "CalibrationMismatchError", "fingerprint", "from_document", "numbers",
+           "read_document"]
 
 SCHEMA = "optitact.calibration"
 #: The schema version written (see the module docstring for what each version holds).
@@ -46,7 +47,11 @@ READ_VERSIONS = (1, 2)
 MAX_FILE_BYTES = 5_000_000
 #: Pipeline options a calibration file may hold.
 PIPELINE_KEYS = ("method", "filter", "filter_size", "noise_sigma", "k", "min_pixels", "saturation",
-                 "radius", "grid_mm", "tail")
+                 "radius", "grid_mm", "tail", "stack_noise")
+#: The ``stack_noise`` rule of calibrations and calibration sets that do not name one: they were made
+#: before the option existed, with the 3 x 3 maximum of a stack baseline's noise (``"maximum"``).
+#: Newly fitted calibrations and new sets name theirs.
+STACK_NOISE_UNNAMED = "maximum"
 
 
 def fingerprint(sensor: DomeSensor, camera: Camera, pipeline_options: dict,

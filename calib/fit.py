@@ -43,6 +43,7 @@ from .curves import EXTRAPOLATE as EXTRAPOLATE
 from .curves import G_TERMS, MODELS, fit_element, grey_for_force, normal_force, zero_shear_centroid
 from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
 from .document import PIPELINE_KEYS as PIPELINE_KEYS
+from .document import STACK_NOISE_UNNAMED
 from .document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolved, fingerprint,
                        from_document, read_document)
 from .error_model import ErrorModel, validate
@@ -233,7 +234,9 @@ class Calibration:
             g_c[e], gu[e], f_c[e], u0[e] = c.g, c.gu, c.f, c.u0
             g_scale[e], u_scale[e], g_max[e], u_max[e] = c.g_scale, c.u_scale, c.g_max, c.u_max
             res["fx"][e], res["fy"][e], res["fz"][e], res["n"][e] = c.rms_fx, c.rms_fy, c.rms_fz, c.n
-        return cls(model, sensor, camera, _resolved(sensor, camera, pipeline_options or {}),
+        # the readings' stack-noise rule named (the Pipeline's default where the options do not say)
+        options = {"stack_noise": "pooled"} | _resolved(sensor, camera, pipeline_options or {})
+        return cls(model, sensor, camera, options,
                    g_c, g_scale, f_c,
                    u_scale, g_max, u_max, gu, res, dict(provenance or {}), intensity,
                    u0=u0 if np.any(u0) else None)
@@ -277,8 +280,18 @@ class Calibration:
                     f"response at another {name} (offset, noise, saturation) is not known; record the "
                     f"frames at {name} {getattr(scale, name):g} or calibrate at {value:g}")
         return Pipeline(self.sensor, self.camera, baseline=baseline, method=method, bits=bits,
-                        readings_bits=scale.bits,
-                        **{k: v for k, v in self.pipeline_options.items() if k != "method"})
+                        readings_bits=scale.bits, **self.reading_options)
+
+    @property
+    def reading_options(self) -> dict:
+        """The pipeline options that read frames as these curves expect (all but ``method``).
+
+        A calibration that names no ``stack_noise`` was fitted on readings made before the option
+        existed: it reads with :data:`~optitact.calib.document.STACK_NOISE_UNNAMED`.
+        """
+        options = {k: v for k, v in self.pipeline_options.items() if k != "method"}
+        options.setdefault("stack_noise", STACK_NOISE_UNNAMED)
+        return options
 
     def check(self, sensor: DomeSensor | None = None, camera: Camera | None = None) -> None:
         """Raise CalibrationMismatchError unless ``sensor``/``camera`` are the calibration's."""
@@ -598,7 +611,8 @@ def fit(calibration_set, *, model: str = "coupled", partial: bool = False, joint
                          f"again to finish it, or fit the {n_done} done frames with partial=True "
                          f"(--partial)")
     return Calibration.fit(cs.readings(), cs.forces(), sensor=cs.sensor, camera=cs.camera,
-                           pipeline_options=cs.attrs.get("pipeline", {}), model=model,
+                           pipeline_options={"stack_noise": STACK_NOISE_UNNAMED} | cs.attrs.get("pipeline", {}),
+                           model=model,
                            provenance={"set": str(cs.path), "frames": n_done, "frames_in_set": n,
                                        "seed": cs.attrs["seed"], "spp": cs.attrs["spp"],
                                        "design": cs.attrs["design"],

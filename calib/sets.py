@@ -40,6 +40,7 @@ from optitact.readings import Readings
 from optitact.sensor import DomeSensor
 
 from ._store import LOCK_NAME, StoreLockedError, open_store, remove_partials, store_lock
+from .document import STACK_NOISE_UNNAMED
 
 __all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "design_forces", "frame_seeds", "generate",
            "RENDER_MODES", "StoreLockedError", "LOCK_NAME"]
@@ -289,7 +290,8 @@ class FrameMaker:
         if pipe is None:
             from optitact.pipeline import Pipeline
 
-            pipe = Pipeline(self.sensor, self.camera, baseline=self.baseline, **self.pipeline_options)
+            options = {"stack_noise": STACK_NOISE_UNNAMED} | self.pipeline_options  # older sets name none
+            pipe = Pipeline(self.sensor, self.camera, baseline=self.baseline, **options)
             self.__dict__["_pipe"] = pipe
         return pipe
 
@@ -439,7 +441,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     options = dict(pipeline_options or {})
     check = Pipeline(sensor, camera, **options)  # validate the options before any work
     # the region geometry as used, so the readings stay interpretable if defaults change
-    options |= {"radius": check.grids.radius, "grid_mm": check.grids.grid_mm}
+    options |= {"radius": check.grids.radius, "grid_mm": check.grids.grid_mm, "stack_noise": check.stack_noise}
     attrs = _set_attrs(sensor=sensor, camera=camera, ccd=ccd, design=design, spp=spp, seed=seed,
                        n_frames=frames, keep_frames=bool(keep_frames),
                        settings=asdict(RenderSettings()), pipeline_options=options,

@@ -6,7 +6,9 @@ capture). :func:`baseline_noise` measures a baseline's noise: the Gaussian
 noise of each pixel, and the isolated bright pixels (hot pixels, path-tracing
 fireflies) that another frame holds at other places; :func:`impulse_floor`
 is the part of each element's contact floor that allows for those
-(:class:`optitact.Pipeline`).
+(:class:`optitact.Pipeline`): a quantile of their summed heights
+(:func:`compound_poisson_quantile`) at their rate in each region
+(:func:`impulse_density`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from .steps import (
     IMPULSE_SIGMAS,
     impulse_hits,
     impulses,
+    maximum_noise,
     noise_from_one_frame,
     noise_from_variance,
     pooled_variance,
@@ -36,9 +39,9 @@ __all__ = ["IMPULSE_FALSE_CONTACT", "BaselineNoise", "baseline_noise", "compound
 #: Probability that isolated bright pixels (:func:`~optitact.steps.impulses`) alone lift one
 #: region of one frame above its noise floor.
 IMPULSE_FALSE_CONTACT = 1e-5
-#: :func:`impulse_density`: half-width of its rings (at least) and the fraction of the frame's pixels
-#: each holds (at least), both of the frame's larger side; the radius of its discs, of the larger
-#: side; the probability below which a disc's count, under the ring's rate, marks a cluster.
+#: :func:`impulse_density`: the least half-width of its rings (of the frame's larger side), the least
+#: fraction of the frame's pixels each ring holds, the radius of its discs (of the larger side), and
+#: the probability below which a disc's count, under the rings' rates, marks a cluster.
 RING_WIDTH = 1.0 / 40.0
 RING_PIXELS = 0.1
 DISC_RADIUS = 1.0 / 20.0
@@ -111,13 +114,18 @@ class BaselineNoise:
     height: np.ndarray
 
 
-def baseline_noise(stack: np.ndarray, *, stacklevel: int = 2) -> BaselineNoise:
+def baseline_noise(stack: np.ndarray, *, stack_noise: str = "pooled", stacklevel: int = 2) -> BaselineNoise:
     r"""The noise map and the isolated bright pixels of a no-load baseline of any number of frames.
 
     Parameters
     ----------
     stack : (T, H, W) ndarray
         The baseline (validated; ``T = 1`` for one frame).
+    stack_noise : {"pooled", "maximum"}
+        The noise map of ``T >= 2`` frames: :func:`~optitact.steps.noise_from_stack`
+        (default), or the earlier :func:`~optitact.steps.maximum_noise`
+        (``dof`` then infinite: ``k`` of its sigmas). The impulses are
+        counted either way.
     stacklevel : int
         Of :func:`~optitact.steps.noise_from_one_frame`'s warning.
 
@@ -172,7 +180,10 @@ def baseline_noise(stack: np.ndarray, *, stacklevel: int = 2) -> BaselineNoise:
         total[where[real]] += height[real]
     count, total = count.reshape(var.shape), total.reshape(var.shape)
     moving = (count > 0) & (count < t_n)
-    noise, dof = noise_from_variance(var, t_n, exclude=count > 0)
+    if stack_noise == "maximum":
+        noise, dof = maximum_noise(var, t_n), math.inf
+    else:
+        noise, dof = noise_from_variance(var, t_n, exclude=count > 0)
     return BaselineNoise(noise, dof, np.where(moving, count / t_n, 0.0), np.where(moving, total / t_n, 0.0))
 
 
@@ -277,9 +288,10 @@ def impulse_density(rate: np.ndarray, fold, *, frames: int) -> np.ndarray:
     impulse.
 
     Where impulses cluster off the symmetry (a patch of flickering
-    pixels), the mean over a disc of radius a twentieth of the larger side
-    is taken instead, if its count over the ``frames`` is one that the
-    ring's rate gives with probability below ``CLUSTER_ALPHA`` (1e-3).
+    pixels), the mean over a disc of radius ``DISC_RADIUS`` (a twentieth
+    of the larger side) is taken instead, if its count over the
+    ``frames`` is one that the rings' rates at its pixels give with
+    probability below ``CLUSTER_ALPHA`` (1e-3).
     """
     import cv2
 
@@ -310,7 +322,8 @@ def impulse_density(rate: np.ndarray, fold, *, frames: int) -> np.ndarray:
     disc = (x * x + y * y <= reach * reach).astype(np.float64)
     found = cv2.filter2D(rate, cv2.CV_64F, disc, borderType=cv2.BORDER_CONSTANT) * frames  # impulses seen
     inside = cv2.filter2D(np.ones_like(rate), cv2.CV_64F, disc, borderType=cv2.BORDER_CONSTANT)
-    found, inside, expected = found.reshape(-1), inside.reshape(-1), (radial * inside * frames).reshape(-1)
+    expected = cv2.filter2D(radial, cv2.CV_64F, disc, borderType=cv2.BORDER_CONSTANT) * frames  # each ring's
+    found, inside, expected = found.reshape(-1), inside.reshape(-1), expected.reshape(-1)
     out = radial.reshape(-1).copy()
     maybe = np.flatnonzero(found > expected + 0.5)  # few: test only those
     if maybe.size:
@@ -332,6 +345,11 @@ def compound_poisson_quantile(lam: float, area, area_weight, height, height_weig
     term; the sum's distribution is the inverse FFT of its characteristic
     function :math:`\exp(\lambda(\phi - 1))` over a range that holds all
     but 1e-12 of the Poisson count.
+
+    Examples
+    --------
+    >>> compound_poisson_quantile(0.5, [1.0], [1.0], [2.0], [1.0], 0.99)  # 3 jumps of 2: P(N <= 3) = 0.998
+    6.0
     """
     area, height = np.asarray(area, dtype=np.float64), np.asarray(height, dtype=np.float64)
     pa, ph = np.asarray(area_weight, dtype=np.float64), np.asarray(height_weight, dtype=np.float64)

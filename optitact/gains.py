@@ -66,8 +66,8 @@ def element_gains(sensor, camera, base, frames, obs_f, obs_e, *, press_force, ca
     if len(calibration.g) != n:
         raise InputError(f"calibration: the reference calibration has {len(calibration.g)} elements, the "
                          f"sensor {n}; give a calibration of a sensor with the same element layout")
-    options = {k: v for k, v in calibration.pipeline_options.items() if k != "method"}
-    pipe = Pipeline(sensor, camera, baseline=base, readings_bits=calibration.intensity.bits, **options)
+    pipe = Pipeline(sensor, camera, baseline=base, readings_bits=calibration.intensity.bits,
+                    **calibration.reading_options)
     stack = np.stack(frames)
     readings = pipe.process(stack)
     g_meas = readings.G[obs_f, obs_e]

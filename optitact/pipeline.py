@@ -65,6 +65,7 @@ from .steps import (
     FILTERS,
     G_MIN,
     MAX_GREY,
+    STACK_NOISE,
     _gaussian_kernel,
     _mean0,
     _saturation_level,
@@ -213,6 +214,16 @@ class Pipeline:
         the spots' tails (:func:`~optitact.steps.clipped_tail`: exact for
         Gaussian spots, from G and the lit pixels' summed threshold); default
         ``"none"``. A calibration fitted with it must be applied with it.
+    stack_noise : {"pooled", "maximum"}
+        The per-pixel noise of a baseline of two or more frames:
+        ``"pooled"`` (default), each pixel's temporal variance pooled over
+        its neighbours, the threshold :func:`~optitact.steps.threshold_sigmas`
+        times it (:func:`~optitact.steps.noise_from_stack`); ``"maximum"``,
+        the earlier map, the largest variance of each 3 x 3 neighbourhood,
+        ``k`` times it (:func:`~optitact.steps.maximum_noise`): higher, and
+        what the calibrations fitted on readings made before the pooled map
+        expect (the shipped one among them). The contact floor allows for
+        the baseline's isolated bright pixels with either.
 
     Raises
     ------
@@ -265,7 +276,7 @@ class Pipeline:
                  saturation: float | None = None, radius: float | None = None,
                  grid_mm: float | None = None, bits: int | None = None,
                  readings_bits: int | None = None, kernel: str = "auto",
-                 threads: int | None = None, tail: str = "none") -> None:
+                 threads: int | None = None, tail: str = "none", stack_noise: str = "pooled") -> None:
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
         if not isinstance(camera, Camera):
@@ -285,6 +296,10 @@ class Pipeline:
             filter_size = positive(filter_size, "filter_size")
         if tail not in TAILS:
             raise InputError(f"tail must be one of {TAILS}, got {tail!r}")
+        if stack_noise not in STACK_NOISE:
+            raise InputError(f"stack_noise must be one of {STACK_NOISE}, got {stack_noise!r}")
+        #: The noise map of a stack baseline (see ``stack_noise``).
+        self.stack_noise = stack_noise
         #: How G treats the energy the threshold clips from the spots' tails (see ``tail``).
         self.tail = tail
         self._run_with(kernel, threads)
@@ -409,7 +424,8 @@ class Pipeline:
         self._baseline_frames = len(frames)
         # a stack's variance needs float64 (its impulses are the same to the bit); one integer frame
         # takes the exact integer arithmetic, faster
-        measured = baseline_noise(stack if self._one_frame else frames, stacklevel=5)
+        measured = baseline_noise(stack if self._one_frame else frames, stack_noise=self.stack_noise,
+                                  stacklevel=5)
         self._noise_dof = measured.dof
         #: (rate, height) of its isolated bright pixels (see :func:`~optitact.baseline.impulse_floor`).
         self._impulses = (measured.rate, measured.height)
@@ -423,7 +439,7 @@ class Pipeline:
                     noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
                     saturation=self.saturation, bits=self.bits, readings_bits=self.readings_bits,
                     kernel=self._kernel_request, threads=self._threads_request, tail=self.tail,
-                    **self._geometry)
+                    stack_noise=self.stack_noise, **self._geometry)
 
     def _check_scale(self, stack: np.ndarray, name: str) -> None:
         """InputError when integer frames are not of the pipeline's bit depth or the baseline's dtype.

@@ -186,7 +186,7 @@ def test_json_round_trip(cal, analytic, tmp_path):
     np.testing.assert_array_equal(back.forces(r)[0], cal.forces(r)[0])
     pipe = optitact.Pipeline(SENSOR, SMALL)
     assert back.pipeline_options == {"noise_sigma": 0.5, "radius": pipe.grids.radius,
-                                     "grid_mm": pipe.grids.grid_mm}
+                                     "grid_mm": pipe.grids.grid_mm, "stack_noise": "pooled"}
     assert back.pipeline().threshold == 1.5
 
 
@@ -328,7 +328,14 @@ def test_generate_fit_apply_round_trip(small_set):
     truth, and the coupled shear model must beat f(u) alone, as the contact model predicts."""
     r, truth = small_set.readings(), small_set.forces()
     c = r.contact
-    assert c.mean() > 0.95
+    # The contact floor allows for the fireflies of the 16-spp no-load frames where they fall: about a
+    # quarter of the outer ring's regions hold one per frame (20-40 grey levels), none of the inner
+    # rings'. Keeping false contacts below 1e-4 there takes a floor near 15 G (~0.2 N on that ring),
+    # and weaker loads there read as no contact: 84 % of the outer ring's samples read (the largest
+    # no-load G of 1,900 path-traced frames as the floor, the most any floor could give: 90 %), the
+    # inner rings' 98 %. The stack floor without the allowance read 98 % with 4 % false contacts.
+    inner = sum(SENSOR.ring_counts[:-1])
+    assert c.mean() > 0.9 and c[:, :inner].mean() > 0.95
     rmse = {}
     for model in ("ohka", "coupled"):
         est, _ = fit(small_set, model=model).forces(r)

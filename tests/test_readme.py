@@ -35,8 +35,8 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 #: Constant line of a README block -> the small value the test gives it.
 QUICK = {
-    "SIZE, SPP": '(160, 120), 4',
-    "FRAMES, RENDER_MODE": '16, "pixels"',
+    "SIZE, SPP": '(160, 120), 16',
+    "FRAMES, RENDER_MODE": '24, "pixels"',
 }
 
 #: Bash lines the test runs (after removing a trailing comment).

@@ -346,7 +346,7 @@ def _presses_pipeline(setup, start, frames):
         raise InputError(f"--setup {setup}: the sensor has {sensor.n_elements} elements, the starting "
                          f"calibration {len(start.g)}")
     return Pipeline(sensor, camera, readings_bits=start.intensity.bits,
-                    **{k: v for k, v in start.pipeline_options.items() if k != "method"})
+                    **start.reading_options)
 
 
 def run_test(args) -> int:

@@ -14,7 +14,7 @@ TINY = optitact.FisheyeCamera(width=120, height=90)
 @pytest.fixture(scope="session")
 def tiny_chain(tmp_path_factory):
     """A 120x90 camera calibrated on 20 frames at 8 spp (a few seconds; noisy, for smoke tests only)."""
-    cset = generate(tmp_path_factory.mktemp("finger") / "c.zarr", frames=20, camera=TINY, spp=8, seed=0,
+    cset = generate(tmp_path_factory.mktemp("finger") / "c.zarr", frames=28, camera=TINY, spp=8, seed=0,
                     render_mode="pixels", baseline_frames=2, progress=False)
     return ChainSimulator(fit(cset), spp=4, seed=3, baseline_frames=2, baseline_spp=8)
 
