@@ -294,6 +294,7 @@ class Pipeline:
                 raise InputError(f"filter_size of a median must be odd, got {filter_size}")
         else:
             filter_size = positive(filter_size, "filter_size")
+        _check_filter_fits(filter, filter_size, camera)
         if tail not in TAILS:
             raise InputError(f"tail must be one of {TAILS}, got {tail!r}")
         if stack_noise not in STACK_NOISE:
@@ -619,3 +620,16 @@ class Pipeline:
                 watch = np.flatnonzero(b + thr >= sat - 1e-9 * max(1.0, sat))
             self._levels[key] = (level, watch, sat)
         return self._levels[key]
+
+
+def _check_filter_fits(method: str, size: float, camera: Camera) -> None:
+    """InputError when the filter's window (3 sigma each side of a gaussian) is wider than the frames."""
+    if method == "none":
+        return
+    side = min(camera.shape)
+    # a sigma wider than the frame is refused before its kernel is made
+    window = size if method == "median" or size > side else 2 * filter_radius(method, size) + 1
+    if window > side:
+        raise InputError(f"filter_size={size:g}: the {method} filter reads {window:g} px across, wider than "
+                         f"the {camera.width}x{camera.height} frames' shorter side ({side} px); about 1 px "
+                         f"(gaussian sigma) or 3 px (median window) smooths pixel noise")

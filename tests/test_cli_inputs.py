@@ -272,3 +272,9 @@ def test_calibrate_test_on_frames_of_another_camera_says_how_to_use_them(user):
     r = user.run("calibrate", "test", "--frames", "f.npy", "--forces", "g.csv", "--calibration", "default")
     assert r.returncode == 2
     assert "320x240" in r.stderr and "640x480" in r.stderr and "--setup setup.json" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("method, size", [("gaussian", 1e9), ("median", 999_999_999)])
+def test_the_pipeline_refuses_a_filter_wider_than_the_frames(method, size):
+    with pytest.raises(optitact.InputError, match="wider than the 80x60 frames' shorter side"):
+        optitact.Pipeline(SENSOR, CAM, filter=method, filter_size=size)
