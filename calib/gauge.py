@@ -70,6 +70,7 @@ from optitact.errors import InputError, ShapeError
 from optitact.io import column_key, csv_numbers, sniff_delimiter
 from optitact.readings import Readings
 from optitact.sensor import DomeSensor
+from optitact.tables import FORCE_UNITS, MASS_UNITS, force_unit
 
 __all__ = ["GAUGE_UNITS", "MAX_GAUGE_FORCE_N", "MAX_LINE_CHARS", "Presses", "check_presses", "measure_presses",
            "read_presses"]
@@ -78,16 +79,12 @@ _REFERENCES = ("local", "global")
 _COLUMNS = ("frame", "element", "fx", "fy", "fz")
 _FORCES = ("fx", "fy", "fz")
 
-#: The units a force column may name in brackets (any case), in N per unit.
-GAUGE_UNITS = {"N": 1.0, "mN": 1e-3, "kN": 1e3, "gf": 9.80665e-3, "kgf": 9.80665, "lbf": 4.4482216152605,
-               "ozf": 4.4482216152605 / 16}
+#: The units a force column may name in brackets (any case), in N per unit (``optitact.tables.FORCE_UNITS``).
+GAUGE_UNITS = FORCE_UNITS
 #: The largest force component (N) a gauge may give for one element (larger: a unit left out, a typo).
 MAX_GAUGE_FORCE_N = 100.0
 #: The longest line (characters) a gauge CSV may have (Python's csv module refuses longer fields).
 MAX_LINE_CHARS = 131072
-# masses a gauge's display may show, and the force unit meant
-_MASSES = {"g": "gf", "kg": "kgf", "lb": "lbf", "lbs": "lbf", "oz": "ozf"}
-_UNIT = re.compile(r"[\(\[]\s*([^\)\]]*?)\s*[\)\]]\s*$")
 
 
 @dataclass(frozen=True, eq=False)
@@ -180,30 +177,17 @@ def _gauge_rows(path: Path) -> list[tuple[int, list[str]]]:
 
 
 def _unit_factor(cell: str, path, lineno: int, col: int) -> float:
-    """N per unit of a force column's header cell (``Fz (mN)`` -> 1e-3; no unit: N)."""
-    m = _UNIT.search(cell)
-    if m is None:
-        return 1.0
-    unit = m.group(1)
-    accepted = ", ".join(GAUGE_UNITS)
-    if unit == "MN":
-        raise InputError(f"{path}, line {lineno}, column {col} ({cell!r}): unit 'MN' is meganewton; write mN "
-                         f"for millinewton (accepted: {accepted})")
-    known = {u.lower(): u for u in GAUGE_UNITS} | {"newton": "N", "newtons": "N"}
-    if unit.lower() in known:
-        return GAUGE_UNITS[known[unit.lower()]]
-    hint = ""
-    if unit.lower() in _MASSES:
-        force = _MASSES[unit.lower()]
-        hint = f"; {unit!r} is a mass: if the gauge reads {force} (its force), write {force}"
-    raise InputError(f"{path}, line {lineno}, column {col} ({cell!r}): unknown force unit {unit!r}; the "
-                     f"accepted units are {accepted} (any case, in brackets after the name: 'Fz (mN)'){hint}")
+    """N per unit of a force column's header cell (``Fz (mN)`` -> 1e-3; no unit: N), or an error naming it."""
+    try:
+        return force_unit(cell)
+    except InputError as exc:
+        raise InputError(f"{path}, line {lineno}, column {col} ({cell!r}): {exc}") from None
 
 
 def _glued_unit(key: str) -> str | None:
     """``'fz_mn'`` -> ``'fz'`` (a force column with its unit glued to the name), else None."""
     m = re.fullmatch(r"(f[xyz])[\s_/-]+(\w+)", key)
-    known = {u.lower() for u in GAUGE_UNITS} | set(_MASSES)
+    known = {u.lower() for u in GAUGE_UNITS} | set(MASS_UNITS)
     return m.group(1) if m is not None and m.group(2) in known else None
 
 

@@ -361,7 +361,8 @@ class ForceField:
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
         cols = read_element_table(path, sensor.n_elements, _CSV_COLUMNS[1:4],
                                   optional=_CSV_COLUMNS[4:7] + _SE_COLUMNS,
-                                  flags=_FLAG_NAMES, headerless=False, what="force field")
+                                  flags=_FLAG_NAMES, headerless=False, what="force field",
+                                  force_units=_CSV_COLUMNS[1:7] + _SE_COLUMNS)
         local = np.stack([cols[k] for k in _CSV_COLUMNS[1:4]], axis=1)
         has_se = [k in cols for k in _SE_COLUMNS]
         if any(has_se) and not all(has_se):

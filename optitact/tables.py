@@ -32,9 +32,50 @@ import numpy as np
 from ._partial import OutputLock, PartialCSV, PartialParquet, remove_stray_partials
 from .errors import InputError, ShapeError
 
-__all__ = ["read_forces_csv", "write_forces_csv", "ReadingsWriter", "read_element_table", "csv_rows",
+__all__ = ["FORCE_UNITS", "MASS_UNITS", "force_unit", "read_forces_csv", "write_forces_csv",
+           "ReadingsWriter", "read_element_table", "csv_rows",
            "csv_numbers", "column_key", "sniff_delimiter", "partial_path", "per_frame_path",
            "PARQUET_ROW_GROUP", "table_files", "refuse_overwriting_inputs"]
+
+#: Force units a column may name in brackets after its name (``Fz (mN)``; any case), in N per unit.
+FORCE_UNITS = {"N": 1.0, "mN": 1e-3, "kN": 1e3, "gf": 9.80665e-3, "kgf": 9.80665, "lbf": 4.4482216152605,
+               "ozf": 4.4482216152605 / 16}
+#: Mass units a force gauge's display may show, and the force unit meant (refused: say the force).
+MASS_UNITS = {"g": "gf", "kg": "kgf", "lb": "lbf", "lbs": "lbf", "oz": "ozf"}
+_UNIT = re.compile(r"[\(\[]\s*([^\)\]]*?)\s*[\)\]]\s*$")
+
+
+def force_unit(cell: str) -> float:
+    """N per unit of a force column's header cell: ``"Fz (mN)"`` -> 0.001; no unit: 1.
+
+    Raises
+    ------
+    InputError
+        A unit other than those of :data:`FORCE_UNITS` (any case), named, with the accepted ones
+        (a mass such as ``g`` or ``lb`` says which force unit to write; ``MN`` is meganewton).
+
+    Examples
+    --------
+    >>> force_unit("Fz (mN)"), force_unit("fx [N]"), force_unit("FY"), round(force_unit("Fz (kgf)"), 5)
+    (0.001, 1.0, 1.0, 9.80665)
+    """
+    m = _UNIT.search(cell)
+    if m is None:
+        return 1.0
+    unit = m.group(1)
+    accepted = ", ".join(FORCE_UNITS)
+    if unit == "MN":
+        raise InputError(f"unit 'MN' is meganewton; write mN for millinewton (accepted: {accepted})")
+    known = {u.lower(): u for u in FORCE_UNITS} | {"newton": "N", "newtons": "N"}
+    if unit.lower() in known:
+        return FORCE_UNITS[known[unit.lower()]]
+    hint = ""
+    if unit.lower() in MASS_UNITS:
+        force = MASS_UNITS[unit.lower()]
+        hint = f"; {unit!r} is a mass: if the gauge reads {force} (its force), write {force}"
+    raise InputError(f"unknown force unit {unit!r}; the accepted units are {accepted} (any case, in brackets "
+                     f"after the name: 'Fz (mN)'){hint}")
+
 
 _HEADERS = (["fx", "fy", "fz"], ["element", "fx", "fy", "fz"])
 
@@ -135,7 +176,7 @@ _FLAG_CELLS = {"0": False, "1": True, "false": False, "true": True}
 def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequence[str], *,
                        optional: Sequence[str] = (), flags: Sequence[str] = (),
                        headerless: bool = True, what: str = "forces",
-                       empty: bool = False) -> dict[str, np.ndarray]:
+                       empty: bool = False, force_units: Sequence[str] = ()) -> dict[str, np.ndarray]:
     """Per-element columns of a CSV file, found by their header names.
 
     Parameters
@@ -159,6 +200,9 @@ def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequen
     empty : bool
         Accept a header with an ``element`` column and no row: no element
         listed, all columns 0 (a forces table of no load).
+    force_units : sequence of str
+        Columns of forces: a unit their header names (``Fz (mN)``, see
+        :func:`force_unit`) is converted to N, and an unknown unit refused.
 
     Returns
     -------
@@ -169,8 +213,9 @@ def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequen
     Notes
     -----
     Header cells match column names whatever their case, surrounding blanks
-    and a trailing unit in parentheses or brackets (``Fx (N)`` is ``fx``), in
-    any order; other columns are ignored. Without an ``element`` column there
+    and a trailing unit in parentheses or brackets (``Fx (N)`` is ``fx``; the
+    unit of a ``force_units`` column converts its values to N), in any
+    order; other columns are ignored. Without an ``element`` column there
     is one row per element, in element order; with one, any subset of the
     elements in any order (each at most once).
 
@@ -220,6 +265,15 @@ def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequen
                 f"and units like 'Fx (N)'), optionally element")
     width = len(header)
     cols = {k: header.index(k) for k in (*wanted, *optional, *flags) if k in header}
+    scale = {}
+    if not (headerless and data_first):
+        for k in force_units:
+            if k in cols:
+                try:
+                    scale[k] = force_unit(first[cols[k]])
+                except InputError as exc:
+                    raise InputError(f"{path}, line {header_line}, column {cols[k] + 1} "
+                                     f"({first[cols[k]]!r}): {exc}") from None
     number_names = [k for k in (*wanted, *optional) if k in cols]
     flag_names = [k for k in flags if k in cols]
     has_element = "element" in header
@@ -253,7 +307,8 @@ def read_element_table(path: str | os.PathLike, n_elements: int, numbers: Sequen
         else:
             e = i
         for k in number_names:
-            out[k][e] = csv_numbers([cells[cols[k]]], path, lineno, first_column=cols[k] + 1)[0]
+            value = csv_numbers([cells[cols[k]]], path, lineno, first_column=cols[k] + 1)[0]
+            out[k][e] = value * scale[k] if k in scale else value
         for k in flag_names:
             flag = _FLAG_CELLS.get(cells[cols[k]].lower())
             if flag is None:
@@ -300,7 +355,7 @@ def read_forces_csv(path: str | os.PathLike, n_elements: int) -> np.ndarray:
     >>> f.shape, f[3].tolist(), float(abs(f).sum() - 0.6) < 1e-12
     ((41, 3), [0.1, 0.0, 0.5], True)
     """
-    cols = read_element_table(path, n_elements, _HEADERS[0], empty=True)
+    cols = read_element_table(path, n_elements, _HEADERS[0], empty=True, force_units=_HEADERS[0])
     return np.stack([cols[k] for k in _HEADERS[0]], axis=1)
 
 

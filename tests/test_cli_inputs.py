@@ -236,6 +236,23 @@ def test_render_takes_a_header_only_forces_file(user):
 
 
 @pytest.mark.render
+def test_render_converts_the_units_a_forces_file_names(user):
+    """The same load in mN and in N renders the same frame; a unit that is no force is refused by name."""
+    user.path("n.csv").write_text("element,Fx (N),Fy (N),Fz (N)\n0,0.05,0,0.6\n")
+    user.path("mn.csv").write_text("element;Fz [mN];fy (mN);FX (mN)\n0;600;0;50\n")
+    for name in ("n", "mn"):
+        r = user.run("render", "--forces", f"{name}.csv", "--out", f"{name}.npy", "--spp", "2", "--width", "64",
+                     "--height", "48")
+        assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(np.load(user.path("n.npy")), np.load(user.path("mn.npy")))
+    user.path("g.csv").write_text("element,fx,fy,Fz (g)\n0,0,0,60\n")
+    r = user.run("render", "--forces", "g.csv", "--out", "g.npy", "--spp", "1", "--width", "64",
+                 "--height", "48")
+    _refused(r, "g.csv", "'g' is a mass", "write gf")
+    assert not user.path("g.npy").exists()
+
+
+@pytest.mark.render
 def test_demo_announces_only_the_renders_it_will_make(user, monkeypatch):
     """With the no-load renders cached (as a first run leaves them) the demo says it reads them."""
     from optitact._cache import cached_render
