@@ -11,12 +11,11 @@ from __future__ import annotations
 import json
 import textwrap
 
-import cv2
-import numpy as np
 import pytest
 
 from optitact.camera_models import OpenCVFisheyeCamera, PinholeCamera, read_opencv_calibration
 from optitact.errors import InputError
+from test_camera_models import write_calibration  # tests/ is on sys.path
 
 FISHEYE = OpenCVFisheyeCamera(640, 480, fx=205.3, fy=205.1, cx=321.4, cy=238.2,
                               dist=(0.012, -0.004, 0.0011, -0.0003))
@@ -24,16 +23,9 @@ PINHOLE = PinholeCamera(640, 480, fx=410.0, fy=409.0, cx=318.0, cy=242.5,
                         dist=(-0.21, 0.05, 0.001, -0.0007, -0.004))
 
 
-def _storage(path, k, d, *, width=640, height=480, extra=None):
-    """A file as OpenCV's calibration sample writes it (cv2.FileStorage)."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    fs.write("image_width", width)
-    fs.write("image_height", height)
-    for key, value in (extra or {}).items():
-        fs.write(key, value)
-    fs.write("camera_matrix", np.asarray(k, float))
-    fs.write("distortion_coefficients", np.asarray(d, float).reshape(-1, 1))
-    fs.release()
+def _storage(path, k, d, **kw):
+    """A file as OpenCV's calibration sample writes it (cv2.FileStorage; ``test_camera_models``)."""
+    write_calibration(path, k, d, **kw)
     return path
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import optitact
+from test_outputs import loaded_frames  # tests/ is on sys.path
 
 SENSOR = optitact.DomeSensor.default()
 CAM = optitact.FisheyeCamera(width=80, height=60)
@@ -49,17 +50,6 @@ def _calibration(path):
     doc = json.loads(DEFAULT_CALIBRATION.read_text())
     doc.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
     Calibration.from_dict(doc).save(path)
-
-
-def _loaded_frames(n: int, seed: int = 4) -> np.ndarray:
-    """8-bit frames with bright spots on a few regions (contacts), the first one unloaded."""
-    rng = np.random.default_rng(seed)
-    frames = rng.integers(0, 3, (n, *CAM.shape)).astype(np.uint8)
-    for t in range(1, n):
-        for _ in range(3):
-            r, c = rng.integers(10, 50), rng.integers(10, 70)
-            frames[t, r:r + 3, c:c + 3] = rng.integers(30, 255)
-    return frames
 
 
 def _video(path, n: int, shape) -> None:
@@ -129,7 +119,7 @@ def test_pixel_noise_refuses_what_the_command_refuses():
 def test_process_refuses_a_gain_no_camera_has_and_writes_every_standard_error(user):
     """--dn-per-electron 1e308 overflowed into empty standard errors; now refused before any frame is read."""
     _calibration(user.path("cal.json"))
-    np.save(user.path("rec.npy"), _loaded_frames(4))
+    np.save(user.path("rec.npy"), loaded_frames(4, seed=4))
     common = ("process", "rec.npy", "--calibration", "cal.json", "--stderr")
     r = user.run(*common, "--dn-per-electron", "1e308", "--out", "se.csv")
     _refused(r, "--dn-per-electron", "at most 65535 grey levels per electron", "1e+308")
@@ -149,7 +139,7 @@ def test_process_refuses_a_gain_no_camera_has_and_writes_every_standard_error(us
     ("gaussian", "nan", ["--filter-size must be a finite number of pixels > 0, got nan"]),
 ])
 def test_process_refuses_a_filter_that_does_not_fit_in_the_frame(user, flt, size, fragments):
-    np.save(user.path("rec.npy"), _loaded_frames(3))
+    np.save(user.path("rec.npy"), loaded_frames(3, seed=4))
     r = user.run("process", "rec.npy", "--filter", flt, "--filter-size", size, "--out", "r.csv")
     _refused(r, *fragments)
     assert not user.path("r.csv").exists()
@@ -159,7 +149,7 @@ def test_process_refuses_a_filter_that_does_not_fit_in_the_frame(user, flt, size
 def test_a_json_file_nested_too_deeply_is_refused_naming_it(user, option, key):
     deep = "[" * 100_000 + "]" * 100_000
     user.path("deep.json").write_text(deep if key is None else f'{{"{key}": {deep}}}')
-    np.save(user.path("rec.npy"), _loaded_frames(3))
+    np.save(user.path("rec.npy"), loaded_frames(3, seed=4))
     extra = ["--setup", "deep.json"] if option == "--setup" else \
         ["--calibration", "cal.json", "--stderr", "--noise", "deep.json"]
     if option == "--noise":
@@ -190,7 +180,7 @@ def test_plot_without_matplotlib_is_refused_before_any_frame_is_processed(user, 
     (fake / "__init__.py").write_text('raise ModuleNotFoundError("No module named \'matplotlib\'", '
                                       'name="matplotlib")\n')
     _calibration(user.path("cal.json"))
-    np.save(user.path("rec.npy"), _loaded_frames(4))
+    np.save(user.path("rec.npy"), loaded_frames(4, seed=4))
     r = user.run("process", "rec.npy", "--calibration", "cal.json", "--plot", "forces.png", "--out", "f.csv",
                  env={"PYTHONPATH": str(fake.parent)})
     _refused(r, "matplotlib is needed for --plot", "pip install 'optitact[plot]'")

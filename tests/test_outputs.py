@@ -195,7 +195,7 @@ def _calibration():
     return Calibration.from_dict(shipped)
 
 
-def _loaded_frames(n: int, seed: int) -> np.ndarray:
+def loaded_frames(n: int, seed: int) -> np.ndarray:
     """Frames with bright spots on a few regions (contacts, forces), the first one unloaded."""
     rng = np.random.default_rng(seed)
     frames = rng.integers(0, 3, (n, *CAM.shape)).astype(np.uint8)
@@ -212,7 +212,7 @@ def test_parquet_table_equals_the_csv_of_the_same_run(tmp_path, monkeypatch):
     from optitact import tables
 
     monkeypatch.setattr(tables, "PARQUET_ROW_GROUP", 41)  # a row group per write: several in a short run
-    np.save(tmp_path / "rec.npy", _loaded_frames(9, seed=6))
+    np.save(tmp_path / "rec.npy", loaded_frames(9, seed=6))
     cal = _calibration()
     for name in ("t.csv", "t.parquet"):
         process_files([tmp_path / "rec.npy"], calibration=cal, out=tmp_path / name, batch=4)
@@ -360,7 +360,7 @@ def test_process_writes_standard_errors_that_grow_with_the_noise(tmp_path):
     alone where nothing is in contact, and more for frames read with a noisier camera (a larger gain)."""
     from optitact.uncertainty import PixelNoise
 
-    np.save(tmp_path / "rec.npy", _loaded_frames(6, seed=3))
+    np.save(tmp_path / "rec.npy", loaded_frames(6, seed=3))
     cal = _calibration()
     quiet = process_files([tmp_path / "rec.npy"], calibration=cal, noise=PixelNoise(0.001), batch=4)
     loud = process_files([tmp_path / "rec.npy"], calibration=cal, noise=PixelNoise(0.1), batch=4)
@@ -450,7 +450,7 @@ def test_calibrate_noise_measures_the_conversion_gain_and_process_reads_the_file
     PixelNoise(0.05).save(tmp_path / "gain.json")
     cal = _calibration()
     cal.save(tmp_path / "cal.json")
-    np.save(tmp_path / "rec.npy", _loaded_frames(5, seed=4))
+    np.save(tmp_path / "rec.npy", loaded_frames(5, seed=4))
     common = ["process", str(tmp_path / "rec.npy"), "--calibration", str(tmp_path / "cal.json"), "--stderr"]
     assert main([*common, "--noise", str(tmp_path / "gain.json"), "--out", str(tmp_path / "a.csv")]) == 0
     assert main([*common, "--dn-per-electron", "0.05", "--out", str(tmp_path / "b.csv")]) == 0
@@ -475,7 +475,7 @@ def test_calibrate_noise_measures_the_conversion_gain_and_process_reads_the_file
 def test_process_refuses_a_bad_noise_option(tmp_path, capsys, extra, match):
     cal = _calibration()
     cal.save(tmp_path / "cal.json")
-    np.save(tmp_path / "rec.npy", _loaded_frames(3, seed=4))
+    np.save(tmp_path / "rec.npy", loaded_frames(3, seed=4))
     (tmp_path / "N").write_text(json.dumps({"pixel_noise": {"dn_per_electron": 0.1}}))
     (tmp_path / "BAD").write_text(json.dumps({"dn_per_electron": 0.1}))
     (tmp_path / "NEG").write_text(json.dumps({"pixel_noise": {"dn_per_electron": -0.1}}))
