@@ -10,7 +10,7 @@ tan(alpha) / E*``):
     ln G_e = ln G_iso,e(F_e, u_e) - sum_{j != e} W_ej Fz_j
 
 ``G_iso`` is what the element would read alone, the per-element curves of a
-:class:`~optitact.calib.Calibration` map it to force, and ``W`` has the
+:class:`~optitact.calib.fit.Calibration` map it to force, and ``W`` has the
 structure of the light transport: ``W_ej = K[r(e), r(j)] + K_near[r(e)]
 exp(-d_ej / NEAR_MM)``, a coupling per pair of rings (the guided light from
 the rim passes ring by ring) and a near-field term that falls with the
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from optitact.errors import InputError
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
 __all__ = ["CrossTalk", "fit_crosstalk", "NEAR_MM", "ITERATIONS"]
 

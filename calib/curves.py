@@ -37,7 +37,7 @@ fitted one is clamped to it, and above the largest fitted G the normal curve
 goes on along its tangent up to :data:`EXTRAPOLATE` further, then holds
 (:func:`normal_force`).
 
-:class:`~optitact.calib.Calibration` evaluates these curves; :func:`fit_element`
+:class:`~optitact.calib.fit.Calibration` evaluates these curves; :func:`fit_element`
 fits them to one element's samples (``Calibration.fit`` runs it per element).
 """
 
@@ -130,7 +130,7 @@ def check_spread(x: np.ndarray, what: str) -> None:
 
 @dataclass(frozen=True)
 class ElementCurves:
-    """The fitted curves of one element (one row of each :class:`~optitact.calib.Calibration` array).
+    """The fitted curves of one element (one row of each :class:`~optitact.calib.fit.Calibration` array).
 
     Attributes
     ----------

@@ -1,4 +1,4 @@
-"""Calibration documents: the JSON a :class:`~optitact.calib.Calibration` is saved as, read and validated.
+"""Calibration documents: the JSON a :class:`~optitact.calib.fit.Calibration` is saved as, read and validated.
 
 :func:`read_document` reads a calibration file (bounded in size, never
 executing anything, refusing NaN and infinity), :func:`from_document` checks
@@ -26,13 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import check_keys, check_type
-from optitact.camera import Camera, camera_from_dict
-from optitact.ccd import IntensityScale
+from optitact.optics.camera import Camera, camera_from_dict
+from optitact.optics.ccd import IntensityScale
 from optitact.errors import InputError, OptitactWarning
-from optitact.io import json_fingerprint
-from optitact.sensor import DomeSensor
+from optitact.io.files import json_fingerprint
+from optitact.optics.sensor import DomeSensor
 
-from .curves import FZ_FLOOR, G_TERMS, MODELS, g_design
+from optitact.calib.curves import FZ_FLOOR, G_TERMS, MODELS, g_design
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "READ_VERSIONS", "MAX_FILE_BYTES", "PIPELINE_KEYS",
            "STACK_NOISE_UNNAMED", "CalibrationMismatchError", "fingerprint", "from_document", "numbers",
@@ -82,7 +82,7 @@ def _resolved(sensor: DomeSensor, camera: Camera, options: dict) -> dict:
     sensor and camera; storing the values used keeps a calibration valid
     even if a later version derives other defaults.
     """
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     plain = _plain(options)
     pipe = Pipeline(sensor, camera, **plain)
@@ -133,7 +133,7 @@ def read_document(path: str | os.PathLike):
 def from_document(cls, d, *, source: str | os.PathLike | None = None):
     """Build a calibration of class ``cls`` from its JSON document ``d``, validating every field.
 
-    This is :meth:`Calibration.from_dict <optitact.calib.Calibration.from_dict>`;
+    This is :meth:`Calibration.from_dict <optitact.calib.fit.Calibration.from_dict>`;
     its docstring lists what is refused, and with which error. ``source``
     (the file the document was read from) names it in warnings.
     """
@@ -249,7 +249,7 @@ def _error_model(value):
     """The document's measured error model (None when it has none)."""
     if value is None:
         return None
-    from .error_model import ErrorModel
+    from optitact.calib.error_model import ErrorModel
 
     try:
         return ErrorModel.from_dict(value)
@@ -261,7 +261,7 @@ def _crosstalk(value, sensor: DomeSensor):
     """The document's cross-talk (None when it has none), checked against the sensor's rings."""
     if value is None:
         return None
-    from .crosstalk import CrossTalk
+    from optitact.calib.crosstalk import CrossTalk
 
     ct = CrossTalk.from_dict(value)
     ct.matrix(sensor)  # InputError unless one row per ring

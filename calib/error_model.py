@@ -20,8 +20,8 @@ accuracy bench's validation frames, the shipped calibration's scales are
 
 fitted by maximum likelihood to the residuals beside the noise the readings
 carried (their propagated standard errors), so that noise is not counted
-twice. :func:`validate` (:meth:`optitact.calib.Calibration.validated`) fits one;
-:meth:`~optitact.calib.Calibration.stderr` then adds it instead of the fit
+twice. :func:`validate` (:meth:`optitact.calib.fit.Calibration.validated`) fits one;
+:meth:`~optitact.calib.fit.Calibration.stderr` then adds it instead of the fit
 residuals.
 """
 
@@ -167,7 +167,7 @@ class ErrorModel:
             Estimated minus true force per loaded element sample, N.
         noise_se : (n, 3) array_like
             The standard errors the readings' noise alone gives those
-            estimates (:meth:`~optitact.calib.Calibration.stderr` without the
+            estimates (:meth:`~optitact.calib.fit.Calibration.stderr` without the
             model error), N; zeros to let the model take the noise too.
         fz : (n,) array_like
             The estimated normal forces, N (what :meth:`sigma` is given in use).
@@ -291,7 +291,7 @@ class ErrorModel:
         """Build from :meth:`to_dict` output; InputError for a malformed one."""
         if not isinstance(d, dict) or not all(k in d for k in ("floor_n", "relative", "samples")):
             raise InputError("calibration 'error_model' must be an object with floor_n, relative and samples")
-        from .document import numbers
+        from optitact.calib.document import numbers
 
         def part(name):  # files written before a part was added have none
             return (0.0, 0.0, 0.0) if d.get(name) is None else \
@@ -327,14 +327,14 @@ def _groups(element, element_group, n: int) -> tuple[np.ndarray, np.ndarray | No
 
 
 def validate(cal, readings, forces, errors=None, *, source: str = ""):
-    """``cal`` (a :class:`~optitact.calib.Calibration`) with its error measured on independent readings.
+    """``cal`` (a :class:`~optitact.calib.fit.Calibration`) with its error measured on independent readings.
 
     The curves stay as they are; the residuals of ``cal.forces`` on
     readings the fit never saw (validation frames, or gauge presses of the
     sensor in use) give an :class:`ErrorModel` (a floor plus parts growing
     with Fz and with the shear, per axis, times a scale per ring of
     elements), fitted beside the readings' own noise, which
-    :meth:`~optitact.calib.Calibration.stderr` then adds instead of the fit
+    :meth:`~optitact.calib.fit.Calibration.stderr` then adds instead of the fit
     residuals. In-sample residuals miss what the calibration samples leave
     out, so without this the error bars are too narrow wherever the
     calibration is used on other frames.
@@ -347,7 +347,7 @@ def validate(cal, readings, forces, errors=None, *, source: str = ""):
     forces : (T, E, 3) array_like
         Their true element-local forces, N; samples with ``Fz > 0`` count.
     errors : ReadingErrors, optional
-        The readings' covariance (:func:`optitact.uncertainty.reading_errors`),
+        The readings' covariance (:func:`optitact.pipeline.uncertainty.reading_errors`),
         propagated and set beside the residuals: pass it when the
         calibration will be used with ``errors`` too (otherwise the model
         error takes the frames' noise as well).
@@ -365,7 +365,7 @@ def validate(cal, readings, forces, errors=None, *, source: str = ""):
     InputError
         Fewer than :data:`MIN_SAMPLES` loaded samples.
     """
-    from . import propagation
+    from optitact.calib import propagation
 
     cal._check(readings)
     truth = np.asarray(forces, dtype=np.float64)

@@ -11,7 +11,7 @@ synthetic calibration set.
 Intensity scale
 ---------------
 G is in the grey levels of the frames the curves were fitted on, so a
-calibration records their :class:`~optitact.ccd.IntensityScale`: the bit
+calibration records their :class:`~optitact.optics.ccd.IntensityScale`: the bit
 depth (``intensity.bits``; the set's CCD when fitted from a calibration set,
 8 for files written before the field existed) and the exposure and gain the
 user states (default 1). :meth:`Calibration.pipeline` maps frames of another
@@ -29,26 +29,23 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import check_type
-from optitact.camera import Camera
-from optitact.ccd import IntensityScale
+from optitact.optics.camera import Camera
+from optitact.optics.ccd import IntensityScale
 from optitact.errors import InputError, ShapeError
-from optitact.io import atomic_write_text
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
+from optitact.io.files import atomic_write_text
+from optitact.pipeline.readings import Readings
+from optitact.optics.sensor import DomeSensor
 
-from .curves import MIN_RELATIVE_SPREAD as MIN_RELATIVE_SPREAD
-from . import propagation
-from .crosstalk import CrossTalk, fit_crosstalk
-from .curves import EXTRAPOLATE as EXTRAPOLATE
-from .curves import G_TERMS, MODELS, fit_element, grey_for_force, normal_force, zero_shear_centroid
-from .document import MAX_FILE_BYTES as MAX_FILE_BYTES
-from .document import PIPELINE_KEYS as PIPELINE_KEYS
-from .document import STACK_NOISE_UNNAMED
-from .document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolved, fingerprint,
-                       from_document, read_document)
-from .error_model import ErrorModel, validate
+from optitact.calib import propagation
+from optitact.calib.crosstalk import CrossTalk, fit_crosstalk
+from optitact.calib.curves import (G_TERMS, MODELS, fit_element, grey_for_force, normal_force,
+                                   zero_shear_centroid)
+from optitact.calib.document import STACK_NOISE_UNNAMED
+from optitact.calib.document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolved, fingerprint,
+                                     from_document, read_document)
+from optitact.calib.error_model import ErrorModel, validate
 
-__all__ = ["EXTRAPOLATE", "MODELS", "Calibration", "CalibrationMismatchError", "fingerprint", "fit"]
+__all__ = ["Calibration", "fit"]
 # MIN_RELATIVE_SPREAD, MAX_FILE_BYTES and PIPELINE_KEYS stay importable from here (re-exported above).
 
 
@@ -62,7 +59,7 @@ class Calibration:
     model : {"ohka", "coupled"}
     sensor, camera : DomeSensor, Camera (any model, e.g. FisheyeCamera)
     pipeline_options : dict
-        Options of :class:`optitact.Pipeline` the readings were made with.
+        Options of :class:`optitact.pipeline.frame_pipeline.Pipeline` the readings were made with.
     g : (E, 4) ndarray
         Normal-force coefficients on ``s = G / g_scale`` (N).
     g_scale : (E,) ndarray
@@ -154,7 +151,7 @@ class Calibration:
         Parameters
         ----------
         readings : Readings
-            Stack readings ``(T, E)`` (from :meth:`optitact.Pipeline.process`).
+            Stack readings ``(T, E)`` (from :meth:`optitact.pipeline.frame_pipeline.Pipeline.process`).
         forces : (T, E, 3) array_like
             Element-local forces (N) applied in each frame.
         sensor, camera : DomeSensor, Camera (any model, e.g. FisheyeCamera)
@@ -244,12 +241,12 @@ class Calibration:
     # ------------------------------------------------------------------ applying
     def pipeline(self, *, baseline=None, method: str = "fast", bits: int | None = None,
                  exposure: float | None = None, gain: float | None = None):
-        """The :class:`optitact.Pipeline` these curves expect (same sensor, camera, options, scale).
+        """The :class:`~optitact.pipeline.frame_pipeline.Pipeline` these curves expect.
 
         Parameters
         ----------
         baseline : array_like, optional
-            No-load frame(s), see :class:`optitact.Pipeline`.
+            No-load frame(s), see :class:`optitact.pipeline.frame_pipeline.Pipeline`.
         method : {"fast", "reference"}
         bits : int, optional
             Bit depth of the frames (e.g. 16, or 12 for 12-bit data in
@@ -270,7 +267,7 @@ class Calibration:
             Frames of a depth, exposure or gain that cannot be mapped onto
             the calibration's exactly; the message names both scales.
         """
-        from optitact.pipeline import Pipeline
+        from optitact.pipeline.frame_pipeline import Pipeline
 
         scale = self.intensity
         for name, value in (("exposure", exposure), ("gain", gain)):
@@ -321,7 +318,7 @@ class Calibration:
         sensor : DomeSensor
             Same ring counts and cones per element as this calibration's.
         camera : Camera
-            Any model (e.g. a registered :class:`optitact.OpenCVFisheyeCamera`).
+            Any model (e.g. a registered :class:`optitact.optics.camera_models.OpenCVFisheyeCamera`).
 
         Returns
         -------
@@ -336,7 +333,7 @@ class Calibration:
 
         Examples
         --------
-        >>> from optitact.calib import default_calibration
+        >>> from optitact.calib.shipped import default_calibration
         >>> cal = default_calibration()
         >>> built = DomeSensor(element_gain=[1.2] + [1.0] * 40)
         >>> moved = cal.transferred(built, cal.camera)
@@ -433,13 +430,13 @@ class Calibration:
     def stderr(self, readings: Readings, errors=None, *, model_error: bool = True, forces=None) -> np.ndarray:
         """Standard errors of :meth:`forces`, (E, 3) or (T, E, 3) N (:func:`.propagation.stderr`).
 
-        ``errors``: the readings' covariance (:func:`optitact.uncertainty.reading_errors`); None gives the
-        model error alone. ``model_error``: add it in quadrature (default). ``forces``: :meth:`forces`'
+        ``errors``: the readings' covariance (:func:`~optitact.pipeline.uncertainty.reading_errors`); None gives
+        the model error alone. ``model_error``: add it in quadrature (default). ``forces``: :meth:`forces`'
         estimates of these readings if already made.
 
         Examples
         --------
-        >>> from optitact.calib import default_calibration
+        >>> from optitact.calib.shipped import default_calibration
         >>> se = default_calibration().stderr(Readings.empty(41))
         >>> se.shape, bool((se > 0).all())
         ((41, 3), True)
@@ -578,7 +575,7 @@ def _check_readings(readings: Readings) -> None:
 
 
 def fit(calibration_set, *, model: str = "coupled", partial: bool = False, joint: bool = False) -> Calibration:
-    """Fit a calibration to a :class:`~optitact.calib.CalibrationSet` (or its path).
+    """Fit a calibration to a :class:`~optitact.calib.sets.CalibrationSet` (or its path).
 
     Parameters
     ----------
@@ -598,7 +595,7 @@ def fit(calibration_set, *, model: str = "coupled", partial: bool = False, joint
         The set has no finished frame, or is incomplete and ``partial`` is false
         (the message says how many frames are done).
     """
-    from .sets import CalibrationSet
+    from optitact.calib.sets import CalibrationSet
 
     cs = calibration_set if isinstance(calibration_set, CalibrationSet) \
         else CalibrationSet(calibration_set)

@@ -9,7 +9,7 @@ and a pressed mask against readings. Fits and reports on presses are in
 The gauge CSV
 -------------
 One row per frame and pressed element, columns found by name (any order, any
-case, ``,`` ``;`` or tab as :func:`optitact.io.sniff_delimiter` tells them)::
+case, ``,`` ``;`` or tab as :func:`optitact.io.tables.sniff_delimiter` tells them)::
 
     frame,element,fx,fy,fz[,frame_of_reference]
 
@@ -19,7 +19,7 @@ video or ``.npy`` stack) or a 0-based index into all the frames in the order
 they are read (baseline frames included). ``element`` is the element index.
 ``fx, fy, fz`` are element-local (``z`` the outward normal, ``fz > 0``
 pressing) unless ``frame_of_reference`` reads ``global`` (the sensor frame:
-converted with :func:`optitact.forces.local_from_global`). The elements of a
+converted with :func:`optitact.optics.force_frames.local_from_global`). The elements of a
 listed frame that have no row are unloaded, and so is every element of a
 frame that is not listed: those no-load samples are used where the pipeline
 sees contact anyway (a zero-force sample for the fit, and in the report's
@@ -67,10 +67,10 @@ import numpy as np
 
 from optitact._validate import check_type
 from optitact.errors import InputError, ShapeError
-from optitact.io import column_key, csv_numbers, sniff_delimiter
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
-from optitact.tables import FORCE_UNITS, MASS_UNITS, force_unit
+from optitact.io.tables import column_key, csv_numbers, sniff_delimiter
+from optitact.pipeline.readings import Readings
+from optitact.optics.sensor import DomeSensor
+from optitact.io.tables import FORCE_UNITS, MASS_UNITS, force_unit
 
 __all__ = ["GAUGE_UNITS", "MAX_GAUGE_FORCE_N", "MAX_LINE_CHARS", "Presses", "check_presses", "measure_presses",
            "read_presses"]
@@ -79,7 +79,7 @@ _REFERENCES = ("local", "global")
 _COLUMNS = ("frame", "element", "fx", "fy", "fz")
 _FORCES = ("fx", "fy", "fz")
 
-#: The units a force column may name in brackets (any case), in N per unit (``optitact.tables.FORCE_UNITS``).
+#: The units a force column may name in brackets (any case), in N per unit (``optitact.io.tables.FORCE_UNITS``).
 GAUGE_UNITS = FORCE_UNITS
 #: The largest force component (N) a gauge may give for one element (larger: a unit left out, a typo).
 MAX_GAUGE_FORCE_N = 100.0
@@ -220,7 +220,7 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     path : path-like
         The CSV (see the module docstring for its columns, units and encodings).
     sources : sequence of str
-        The frames' sources in order (:attr:`optitact.batch.ProcessedFrames.sources`).
+        The frames' sources in order (:attr:`optitact.pipeline.batch.ProcessedFrames.sources`).
     sensor : DomeSensor
 
     Returns
@@ -249,14 +249,14 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     Examples
     --------
     >>> import pathlib, tempfile
-    >>> from optitact import DomeSensor
+    >>> from optitact.optics.sensor import DomeSensor
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "gauge.csv"
     >>> _ = p.write_text("Frame;Element;Fx (mN);Fy (mN);Fz (mN)\npress_1.png;3;100;0;500\n1;0;0;0;200\n")
     >>> f, pressed = read_presses(p, ["noload.png", "press_1.png"], DomeSensor.default())
     >>> f.shape, f[1, 3].tolist(), f[1, 0].tolist(), int(pressed.sum())
     ((2, 41, 3), [0.1, 0.0, 0.5], [0.0, 0.0, 0.2], 2)
     """
-    from optitact.forces import local_from_global
+    from optitact.optics.force_frames import local_from_global
 
     check_type(sensor, DomeSensor, "sensor")
     sources = [str(s) for s in sources]
@@ -351,14 +351,14 @@ def measure_presses(frames: Sequence[str | os.PathLike], forces: str | os.PathLi
     ----------
     frames : sequence of path-like
         Image files, folders, ``.npy`` stacks or videos
-        (:func:`optitact.frames.expand_sources`), read in order.
+        (:func:`optitact.io.frames.expand_sources`), read in order.
     forces : path-like
         The gauge CSV (see the module docstring).
     pipeline : Pipeline
     baseline : array_like, optional
         No-load frame(s); else the mean of the first ``baseline_frames``
         frames (which must not be listed in the CSV), as in
-        :func:`optitact.batch.process_files`.
+        :func:`optitact.pipeline.batch.process_files`.
     baseline_frames : int
     progress : bool
 
@@ -366,9 +366,9 @@ def measure_presses(frames: Sequence[str | os.PathLike], forces: str | os.PathLi
     ------
     InputError
         The CSV names a baseline frame as pressed; see also :func:`read_presses`
-        and :func:`~optitact.batch.process_files`.
+        and :func:`~optitact.pipeline.batch.process_files`.
     """
-    from optitact.batch import process_files
+    from optitact.pipeline.batch import process_files
 
     done = process_files(frames, pipeline=pipeline, baseline=baseline, baseline_frames=baseline_frames,
                          progress=progress)

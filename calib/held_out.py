@@ -17,13 +17,13 @@ import numpy as np
 
 from optitact._validate import check_type, integer
 from optitact.errors import InputError, OptitactWarning
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
-from optitact.uncertainty import coverage, error_ratio
+from optitact.pipeline.readings import Readings
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.uncertainty import coverage, error_ratio
 
-from .fit import Calibration
-from .gauge import check_presses, measure_presses
-from .press_fit import fit_presses, starting_calibration
+from optitact.calib.fit import Calibration
+from optitact.calib.gauge import check_presses, measure_presses
+from optitact.calib.press_fit import fit_presses, starting_calibration
 
 __all__ = ["evaluate_calibration", "press_curve", "press_report"]
 
@@ -64,7 +64,7 @@ def press_report(calibration: Calibration, readings: Readings, forces, pressed=N
         :meth:`Calibration.validated` measures them from presses like these);
         ``error_ratio`` per axis: the errors in those standard errors, root
         mean square (1 when they are right:
-        :func:`optitact.uncertainty.error_ratio`).
+        :func:`optitact.pipeline.uncertainty.error_ratio`).
     """
     check_type(calibration, Calibration, "calibration")
     worst = integer(worst, "worst", minimum=0)
@@ -148,7 +148,7 @@ def press_curve(readings: Readings, forces, test_readings: Readings, test_forces
         report's ``rmse_pct_fs`` and ``rmse_n``, or ``{"refused": message}``
         where the fit is refused (from scratch below ``MIN_PRESSES_SCRATCH``).
     """
-    from .document import _plain
+    from optitact.calib.document import _plain
 
     f = np.asarray(forces, dtype=np.float64)
     pressed = np.any(f != 0, axis=-1) if pressed is None else np.asarray(pressed, dtype=bool)

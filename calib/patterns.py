@@ -18,7 +18,7 @@ in one direction. Each family here draws element-local forces ``(T, E, 3)``
     One element loaded per frame, the others free; elements in turn, random
     normal force and shear.
 ``clustered``
-    A rounded indenter (:func:`optitact.loads.indenter_load`) pressed at a
+    A rounded indenter (:func:`optitact.optics.loads.indenter_load`) pressed at a
     random point, width 2-8 mm, peak up to ``fz_max``, dragged with up to
     ``mu_max`` of shear in a random direction: a neighbourhood loaded
     together, strongest at its centre.
@@ -43,7 +43,7 @@ import numpy as np
 
 from optitact._validate import integer
 from optitact.errors import InputError
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
 __all__ = ["PATTERNS", "FAMILIES", "pattern_forces"]
 
@@ -82,7 +82,7 @@ def pattern_forces(pattern: str, n_frames: int, sensor: DomeSensor, design, seed
     with ``k`` the family's index, so each family's frames depend only on the
     seed.
     """
-    from optitact.loads import indenter_load
+    from optitact.optics.loads import indenter_load
 
     if pattern not in PATTERNS:
         raise InputError(f"pattern must be one of {PATTERNS}, got {pattern!r}")
@@ -91,7 +91,7 @@ def pattern_forces(pattern: str, n_frames: int, sensor: DomeSensor, design, seed
     if pattern == "independent":
         from dataclasses import replace
 
-        from .sets import design_forces
+        from optitact.calib.sets import design_forces
 
         return design_forces(n_frames, n_el, replace(design, pattern="independent"), seed)
     if pattern == "blend":

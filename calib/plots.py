@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact.io import atomic_write_png_figure
+from optitact.io.files import atomic_write_png_figure
 
 __all__ = ["plot_fit", "plot_errors"]
 

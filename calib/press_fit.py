@@ -2,7 +2,7 @@
 
 :func:`fit_from_frames` reads frames of presses and the gauge's CSV
 (:func:`~optitact.calib.gauge.measure_presses`) and fits a
-:class:`~optitact.calib.Calibration` to them with :func:`fit_presses`, either
+:class:`~optitact.calib.fit.Calibration` to them with :func:`fit_presses`, either
 from scratch or by refining a starting calibration (the shipped synthetic
 one, ``start="default"``).
 
@@ -10,7 +10,7 @@ Refinement
 ----------
 From scratch every element needs at least ``MIN_PRESSES_SCRATCH`` presses
 (the cubic ``g(G)``, its brightness gradient and the shear curve of
-:meth:`Calibration.fit <optitact.calib.Calibration.fit>`). Starting from a
+:meth:`Calibration.fit <optitact.calib.fit.Calibration.fit>`). Starting from a
 calibration, each element with at least ``MIN_PRESSES_REFINE`` presses may
 change in three groups of parameters (:data:`GROUPS`), fitted by least
 squares over its presses:
@@ -47,7 +47,7 @@ is not). Elements with fewer than ``MIN_PRESSES_REFINE`` presses keep the
 starting curves (a warning names them). A refined element's fitted range
 grows to the largest G and shift seen in its presses. A start made for
 another sensor or camera is transferred to the presses' first
-(:meth:`Calibration.transferred <optitact.calib.Calibration.transferred>`),
+(:meth:`Calibration.transferred <optitact.calib.fit.Calibration.transferred>`),
 so a registered sensor's element gains start the refinement.
 """
 
@@ -61,15 +61,15 @@ from dataclasses import replace
 import numpy as np
 
 from optitact._validate import integer
-from optitact.ccd import IntensityScale
+from optitact.optics.ccd import IntensityScale
 from optitact.errors import InputError, OptitactWarning, ShapeError
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
+from optitact.pipeline.readings import Readings
+from optitact.optics.sensor import DomeSensor
 
-from .curves import MODELS
-from .document import PIPELINE_KEYS
-from .fit import Calibration
-from .gauge import Presses, check_presses, measure_presses
+from optitact.calib.curves import MODELS
+from optitact.calib.document import PIPELINE_KEYS
+from optitact.calib.fit import Calibration
+from optitact.calib.gauge import Presses, check_presses, measure_presses
 
 __all__ = ["EVIDENCE", "GROUPS", "MIN_PRESSES_REFINE", "MIN_PRESSES_SCRATCH", "MIN_PRESSES_TO_TELL",
            "REFINE_FOLDS", "fit_from_frames", "fit_presses"]
@@ -103,7 +103,7 @@ def starting_calibration(start) -> Calibration | None:
     if start is None or isinstance(start, Calibration):
         return start
     if isinstance(start, str) and start == "default":
-        from . import default_calibration
+        from optitact.calib.shipped import default_calibration
 
         return default_calibration()
     if isinstance(start, (str, os.PathLike)):
@@ -160,9 +160,9 @@ def fit_measured(p: Presses, pipeline, *, model, start, forces) -> Calibration:
 
 def default_pipeline(frames):
     """A pipeline of ``DomeSensor.default()`` and a ``FisheyeCamera`` of the first frame's size."""
-    from optitact.camera import FisheyeCamera
-    from optitact.frames import expand_sources, iter_frames
-    from optitact.pipeline import Pipeline
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.io.frames import expand_sources, iter_frames
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     first = next(iter_frames(expand_sources(frames)[:1]), None)
     if first is None:

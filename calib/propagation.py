@@ -1,10 +1,10 @@
 """Error propagation through a calibration: the Jacobian of its forces, its model error, standard errors.
 
-:class:`~optitact.calib.Calibration` exposes these as methods
-(:meth:`~optitact.calib.Calibration.jacobian`,
-:meth:`~optitact.calib.Calibration.model_error`,
-:meth:`~optitact.calib.Calibration.stderr`); the readings' own covariance
-comes from :func:`optitact.uncertainty.reading_errors`.
+:class:`~optitact.calib.fit.Calibration` exposes these as methods
+(:meth:`~optitact.calib.fit.Calibration.jacobian`,
+:meth:`~optitact.calib.fit.Calibration.model_error`,
+:meth:`~optitact.calib.fit.Calibration.stderr`); the readings' own covariance
+comes from :func:`optitact.pipeline.uncertainty.reading_errors`.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from optitact.errors import ShapeError
-from optitact.readings import Readings
+from optitact.pipeline.readings import Readings
 
-from .curves import G_TERMS
+from optitact.calib.curves import G_TERMS
 
 __all__ = ["jacobian", "model_error", "stderr"]
 
@@ -118,14 +118,14 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
     ----------
     readings : Readings
     errors : ReadingErrors, optional
-        The readings' covariance (:func:`optitact.uncertainty.reading_errors`),
+        The readings' covariance (:func:`optitact.pipeline.uncertainty.reading_errors`),
         propagated through :func:`jacobian`; None: the calibration's
         model error alone.
     with_model_error : bool
         Add the model error in quadrature (default): the calibration's
         measured :class:`~optitact.calib.error_model.ErrorModel` at each
         element's estimated forces (its Fz and shear) where it has one
-        (:meth:`~optitact.calib.Calibration.validated`), else :func:`model_error`.
+        (:meth:`~optitact.calib.fit.Calibration.validated`), else :func:`model_error`.
     forces : ndarray, optional
         ``cal.forces(readings)[0]`` when already made (the measured error
         model is read at them; otherwise they are computed again).
@@ -139,7 +139,7 @@ def stderr(cal, readings: Readings, errors=None, *, with_model_error: bool = Tru
 
     Examples
     --------
-    >>> from optitact.calib import default_calibration
+    >>> from optitact.calib.shipped import default_calibration
     >>> cal = default_calibration()
     >>> se = cal.stderr(Readings.empty(41))
     >>> se.shape, bool((se > 0).all())

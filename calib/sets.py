@@ -16,7 +16,7 @@ left by a kill are removed on the next run. While :func:`generate` writes it
 holds an OS lock on the store (``.optitact-lock`` inside it, naming the
 holder): a second writer is refused at once. That housekeeping of the store
 (its lock, a half-made store, stray partial files) is in
-:mod:`optitact.calib._store`.
+:mod:`optitact.calib.store`.
 """
 
 from __future__ import annotations
@@ -32,18 +32,18 @@ import numpy as np
 
 from optitact._optional import require
 from optitact._validate import integer, positive, seed_value
-from optitact.camera import FisheyeCamera, camera_from_dict
-from optitact.ccd import CCD
+from optitact.optics.camera import FisheyeCamera, camera_from_dict
+from optitact.optics.ccd import CCD
 from optitact.errors import InputError
-from optitact.io import json_fingerprint
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
+from optitact.io.files import json_fingerprint
+from optitact.pipeline.readings import Readings
+from optitact.optics.sensor import DomeSensor
 
-from ._store import LOCK_NAME, StoreLockedError, open_store, remove_partials, store_lock
-from .document import STACK_NOISE_UNNAMED
+from optitact.calib.store import open_store, remove_partials, store_lock
+from optitact.calib.document import STACK_NOISE_UNNAMED
 
 __all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "design_forces", "frame_seeds", "generate",
-           "RENDER_MODES", "StoreLockedError", "LOCK_NAME"]
+           "RENDER_MODES"]
 
 #: How :func:`generate` renders its frames (see its ``render_mode``).
 RENDER_MODES = ("two_stage", "pixels", "full")
@@ -92,7 +92,7 @@ class Design:
         if frac > 1:
             raise InputError(f"sweep_fraction must be in [0, 1], got {frac}")
         object.__setattr__(self, "sweep_fraction", frac)
-        from .patterns import PATTERNS
+        from optitact.calib.patterns import PATTERNS
 
         if self.pattern not in PATTERNS:
             raise InputError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
@@ -130,7 +130,7 @@ def design_forces(n_frames: int, n_elements: int, design: Design, seed: int,
     from scipy.stats import qmc
 
     if design.pattern != "independent":
-        from .patterns import pattern_forces
+        from optitact.calib.patterns import pattern_forces
 
         sensor = DomeSensor.default() if sensor is None else sensor
         if sensor.n_elements != n_elements:
@@ -288,7 +288,7 @@ class FrameMaker:
         """The set's pipeline, built on first use in this process."""
         pipe = self.__dict__.get("_pipe")
         if pipe is None:
-            from optitact.pipeline import Pipeline
+            from optitact.pipeline.frame_pipeline import Pipeline
 
             options = {"stack_noise": STACK_NOISE_UNNAMED} | self.pipeline_options  # older sets name none
             pipe = Pipeline(self.sensor, self.camera, baseline=self.baseline, **options)
@@ -330,7 +330,7 @@ def _make_frame(maker: FrameMaker, forces, seed: int) -> dict:
 
 def _distributed(scheduler, maker: FrameMaker, todo, forces, seeds, token: str):
     """Run frames on a Dask cluster; yield ``(index, readings)`` as they finish."""
-    from optitact._cluster import dask_client
+    from optitact.dask_client import dask_client
 
     as_completed = require("distributed", purpose="calibration sets on a cluster").as_completed
     with dask_client(scheduler, purpose="calibration sets on a cluster") as client:
@@ -370,7 +370,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     variant : str, optional
         Mitsuba variant (not part of the set's identity).
     pipeline_options : dict, optional
-        Options of :class:`optitact.Pipeline` that read the frames.
+        Options of :class:`optitact.pipeline.frame_pipeline.Pipeline` that read the frames.
     baseline_frames : int
         No-load frames rendered for the baseline (default 4): their mean is
         subtracted and their per-pixel noise sets the threshold (the faint
@@ -389,7 +389,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         the package for the default sensor and camera (nothing to measure),
         else the cached one for this sensor and camera, measured on first use
         at ``table_spp`` (a one-time step of many minutes, announced on stderr
-        with an estimate; see :func:`optitact.render.twostage.emission_table`).
+        with an estimate; see :func:`optitact.render.emission.emission_table`).
     table_spp : int, optional
         Samples per pixel of that measurement (default: the shipped table's,
         else ``TABLE_SPP`` = 4096); fewer is faster and noisier.
@@ -415,8 +415,8 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
     """
     zarr = require("zarr", purpose="calibration sets")
 
-    from optitact.pipeline import Pipeline
-    from optitact.render import RenderSettings
+    from optitact.pipeline.frame_pipeline import Pipeline
+    from optitact.render.scene import RenderSettings
 
     frames = integer(frames, "frames", minimum=1)
     spp = integer(spp, "spp", minimum=1)
@@ -447,7 +447,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
                        settings=asdict(RenderSettings()), pipeline_options=options,
                        baseline_frames=baseline_frames, render_mode=render_mode)
     if render_mode == "two_stage":
-        from optitact.render.twostage import emission_table, shipped_table
+        from optitact.render.emission import emission_table, shipped_table
 
         # The table belongs to the patches, not the camera: the shipped one serves every camera; else it
         # is measured through this camera if it is an on-axis fisheye (small ones measure fast), else the

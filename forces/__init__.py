@@ -1,11 +1,14 @@
-"""Force fields on the dome: frame changes, one frame's :class:`ForceField`; slip, friction, decoupling next.
+"""One frame's forces on the dome as a :class:`ForceField`; slip, friction and contact events in the modules.
+
+Modules: :mod:`~optitact.forces.slip`, :mod:`~optitact.forces.friction`, :mod:`~optitact.forces.contact_events`
+(and the frame changes in :mod:`optitact.optics.force_frames`).
 
 Convention
 ----------
 Element-local forces ``(Fx, Fy, Fz)``: ``z`` the outward normal, ``Fz`` positive
 when the element is pressed onto the dome (so the global force the object
 exerts on the element is ``Fx x_i + Fy y_i - Fz z_i``). Global forces are in
-the sensor frame of :mod:`optitact.sensor`. Units: N.
+the sensor frame of :mod:`optitact.optics.sensor`. Units: N.
 """
 
 from __future__ import annotations
@@ -20,79 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import finite, positive, real_array
-from optitact.camera import Camera
-from optitact.contact import check_forces
+from optitact.optics.camera import Camera
+from optitact.optics.contact import check_forces
 from optitact.errors import InputError, ShapeError
-from optitact.sensor import DomeSensor
-from optitact.uncertainty import Z90
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.uncertainty import Z90
+from optitact.optics.force_frames import global_from_local
 
-__all__ = ["ForceField", "frame_totals", "global_from_local", "local_from_global"]
-
-_SIGN = np.array([1.0, 1.0, -1.0])
-
-
-def global_from_local(sensor: DomeSensor, forces) -> np.ndarray:
-    """Convert element-local forces (N, 3) to global force vectors on the elements (N, 3).
-
-    Notes
-    -----
-    ``F_global_i = frames_i^T (Fx, Fy, -Fz)``: the compressive normal ``Fz``
-    points into the dome, against the outward normal.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> s = DomeSensor.default()
-    >>> f = np.zeros((41, 3)); f[0] = (0.1, 0.0, 1.0)
-    >>> global_from_local(s, f)[0]
-    array([ 0.1,  0. , -1. ])
-    """
-    f = check_forces(forces, sensor)
-    return np.einsum("nij,ni->nj", sensor.element_frames, f * _SIGN)
-
-
-def local_from_global(sensor: DomeSensor, forces_global) -> np.ndarray:
-    """Inverse of :func:`global_from_local`."""
-    f = check_forces(forces_global, sensor, "forces_global")
-    return np.einsum("nij,nj->ni", sensor.element_frames, f) * _SIGN
-
-
-def frame_totals(sensor: DomeSensor, local, contact) -> dict[str, np.ndarray]:
-    """Per-frame totals of a stack of force fields: :class:`ForceField`'s quantities, vectorised.
-
-    Parameters
-    ----------
-    sensor : DomeSensor
-    local : (T, N, 3) array_like
-        Element-local forces (N) of ``T`` frames.
-    contact : (T, N) bool array_like
-        Elements in contact.
-
-    Returns
-    -------
-    dict of str to ndarray
-        ``global`` (T, N, 3) global forces on the elements (N);
-        ``resultant`` (T, 3) their sum over contact elements (N);
-        ``total_normal`` (T,) the sum of ``Fz`` over contact elements (N);
-        ``centre_of_pressure`` (T, 3) in mm, NaN where :attr:`ForceField.centre_of_pressure`
-        is None; ``n_contact`` (T,) int. Frame ``t`` equals
-        ``ForceField(sensor, local[t], contact=contact[t])``'s (to rounding).
-    """
-    f = np.asarray(local, dtype=np.float64)
-    c = np.asarray(contact, dtype=bool)
-    g = np.einsum("nij,tni->tnj", sensor.element_frames, f * _SIGN)
-    cm = c[..., None]
-    w = np.where(c, np.maximum(f[..., 2], 0.0), 0.0)
-    total = w.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = (w @ sensor.element_positions) / total[:, None]
-        norm = np.linalg.norm(p, axis=1)
-        cop = sensor.outer_radius * p / norm[:, None]
-    cop[~((total > 0) & (norm > 0))] = np.nan
-    return {"global": g, "resultant": np.where(cm, g, 0.0).sum(axis=1),
-            "total_normal": np.where(c, f[..., 2], 0.0).sum(axis=1), "centre_of_pressure": cop,
-            "n_contact": c.sum(axis=1)}
-
+__all__ = ["ForceField"]
 
 # ----------------------------------------------------------------------------- force field
 _CSV_COLUMNS = ("element", "fx", "fy", "fz", "fx_global", "fy_global", "fz_global",
@@ -143,7 +81,7 @@ class ForceField:
         The element's image region saturated the camera; default all False.
     stderr : (N, 3) array_like, optional
         Standard errors of ``local`` (N), finite and >= 0, e.g. from
-        :meth:`optitact.calib.Calibration.stderr`; stored read-only. None:
+        :meth:`optitact.calib.fit.Calibration.stderr`; stored read-only. None:
         not known.
 
     Raises
@@ -161,7 +99,7 @@ class ForceField:
     Element-local forces as in this module: ``z`` the outward surface normal,
     ``Fz`` positive when the element is pressed onto the dome. Global vectors
     and positions are ``(x, y, z)`` in the sensor frame of
-    :mod:`optitact.sensor` (origin at the dome centre, mm); forces in N,
+    :mod:`optitact.optics.sensor` (origin at the dome centre, mm); forces in N,
     moments in N mm. The resultant, moment, total normal force and centre of
     pressure sum over contact elements only. Image positions in :meth:`plot`
     are ``(row, col)`` pixels, drawn at ``x = col``, ``y = row``.
@@ -305,10 +243,10 @@ class ForceField:
         Floats are written with ``repr`` (shortest exact round trip), flags as
         0/1; the standard errors ``fx_se, fy_se, fz_se`` come last, when known.
         The rows go to a temporary file renamed to ``path`` when complete
-        (:func:`optitact.io.atomic_write`): ``path`` is the old file or the
+        (:func:`optitact.io.files.atomic_write`): ``path`` is the old file or the
         whole new one, never half of it.
         """
-        from optitact.io import atomic_write
+        from optitact.io.files import atomic_write
 
         table = self.as_dict()
 
@@ -329,7 +267,7 @@ class ForceField:
     def from_csv(cls, path: str | os.PathLike, sensor: DomeSensor) -> ForceField:
         """Read a force field from CSV: the files :meth:`to_csv` writes, and those people write.
 
-        Columns are found by header name (:func:`optitact.tables.read_element_table`):
+        Columns are found by header name (:func:`optitact.io.tables.read_element_table`):
         ``fx, fy, fz`` (element-local, N) are needed, in any order, whatever
         their case and a unit in parentheses or brackets (``Fx (N)``);
         ``element``, the global columns ``fx_global, fy_global, fz_global``
@@ -355,7 +293,7 @@ class ForceField:
             twice, a delimiter that cannot be told, or global columns that
             disagree with the local forces for ``sensor``.
         """
-        from optitact.tables import read_element_table
+        from optitact.io.tables import read_element_table
 
         if not isinstance(sensor, DomeSensor):
             raise TypeError(f"sensor must be a DomeSensor, got {type(sensor).__name__}")
@@ -414,7 +352,7 @@ class ForceField:
         Raises
         ------
         TypeError
-            ``camera`` is not a :class:`~optitact.camera.Camera` or ``frame`` is not a
+            ``camera`` is not a :class:`~optitact.optics.camera.Camera` or ``frame`` is not a
             real numeric array.
         ShapeError
             ``frame`` is not ``camera.shape``.
@@ -566,16 +504,6 @@ class ForceField:
     def save_plot(self, path: str | os.PathLike, frame: np.ndarray, camera: Camera,
                   **kwargs) -> Path:
         """Save :meth:`plot` as a PNG (100 dpi) and return the path; ``kwargs`` go to :meth:`plot`."""
-        from optitact.io import atomic_write_png_figure
+        from optitact.io.files import atomic_write_png_figure
 
         return atomic_write_png_figure(self.plot(frame, camera, **kwargs), path, dpi=100)
-
-
-# ----------------------------------------------------------------------------- friction, slip, contact
-from ._series import CONTOUR_THRESHOLD, SLIP_THRESHOLD, TABLE_THRESHOLD  # noqa: E402
-from .contact_events import ContactDetector, detect_contact  # noqa: E402
-from .friction import FrictionEstimate, friction_coefficient  # noqa: E402
-from .slip import SlipDetector, SlipEvent, SlipResult, detect_slip  # noqa: E402
-
-__all__ += ["CONTOUR_THRESHOLD", "SLIP_THRESHOLD", "TABLE_THRESHOLD", "ContactDetector", "FrictionEstimate",
-            "SlipDetector", "SlipEvent", "SlipResult", "detect_slip", "detect_contact", "friction_coefficient"]

@@ -11,7 +11,7 @@ import numpy as np
 from optitact._validate import finite, integer, positive, real_array
 from optitact.errors import InputError, ShapeError
 
-from ._series import TABLE_THRESHOLD
+from optitact.forces.series import TABLE_THRESHOLD
 
 __all__ = ["ContactDetector", "detect_contact"]
 

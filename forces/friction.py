@@ -23,7 +23,7 @@ import numpy as np
 from optitact._validate import integer, positive
 from optitact.errors import InputError, ShapeError
 
-from ._series import fraction, series, times
+from optitact.forces.series import fraction, series, times
 
 __all__ = ["FrictionEstimate", "friction_coefficient"]
 

@@ -14,7 +14,7 @@ import numpy as np
 from optitact._validate import finite, integer, positive, real_array, real_number
 from optitact.errors import InputError, ShapeError
 
-from ._series import SLIP_THRESHOLD, fraction, series, times
+from optitact.forces.series import SLIP_THRESHOLD, fraction, series, times
 
 __all__ = ["SlipEvent", "SlipResult", "SlipDetector", "detect_slip"]
 

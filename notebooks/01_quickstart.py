@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 from IPython.display import Image
 from matplotlib.figure import Figure
-
-import optitact
-from optitact.calib import default_calibration
+from optitact.calib.shipped import default_calibration
 from optitact.render import render, spot_pixels
 
-sensor = optitact.DomeSensor.default()
-camera = optitact.FisheyeCamera()        # 640 x 480 fisheye under the dome
-ccd = optitact.CCD()
+import optitact
+
+sensor = optitact.optics.sensor.DomeSensor.default()
+camera = optitact.optics.camera.FisheyeCamera()        # 640 x 480 fisheye under the dome
+ccd = optitact.optics.ccd.CCD()
 cal = default_calibration()              # fitted on synthetic frames of this sensor and camera
 
 # %% [markdown]

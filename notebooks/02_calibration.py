@@ -13,13 +13,14 @@ from pathlib import Path
 
 import numpy as np
 from IPython.display import Image
+from optitact.calib.fit import fit
+from optitact.calib.plots import plot_errors, plot_fit
+from optitact.calib.sets import generate
 
 import optitact
-from optitact.calib import fit, generate
-from optitact.calib.plots import plot_errors, plot_fit
 
 work = Path(tempfile.mkdtemp())
-camera = optitact.FisheyeCamera(width=240, height=180)
+camera = optitact.optics.camera.FisheyeCamera(width=240, height=180)
 common = dict(camera=camera, spp=32, render_mode="pixels", progress=False)
 train = generate(work / "train.zarr", frames=48, seed=0, **common)
 test = generate(work / "test.zarr", frames=12, seed=100, **common)

@@ -15,16 +15,16 @@ from pathlib import Path
 
 import numpy as np
 from IPython.display import Image
+from optitact.render import spot_pixels
+from optitact.render.emission import emission_table
+from optitact.render.scene import patch_mesh
 
 import optitact
+from optitact.optics.contact import contact_patches
 from optitact.studies.bench_render import bench_render, render_cases
-from optitact.contact import contact_patches
-from optitact.render import spot_pixels
-from optitact.render.scene import patch_mesh
-from optitact.render.twostage import emission_table
 
-sensor = optitact.DomeSensor.default()
-camera = optitact.FisheyeCamera(width=160, height=120)
+sensor = optitact.optics.sensor.DomeSensor.default()
+camera = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 cases = render_cases(sensor)
 
 # %% [markdown]

@@ -2,7 +2,7 @@
 # # Other tactile sensors: taxel arrays as small images
 #
 # Besides the dome, optitact simulates four taxel arrays as *sources* of small images with
-# one interface (`optitact.sources`): a 16 x 16 piezoresistive finger pad (`piezo16`),
+# one interface (`optitact.taxels.sources`): a 16 x 16 piezoresistive finger pad (`piezo16`),
 # 8 x 8 thread-electrode arrays on a gripper's jaws (`thread8`), a 5 x 5 optoelectronic pad
 # (`opto5`) and a non-coplanar 25-unit fingertip (`fingertip25`). Each comes with the
 # analysis its inventors used: active tracing of pipes, palpation classification, wire
@@ -18,7 +18,7 @@ import numpy as np
 from IPython.display import Image, display
 
 from optitact import studies
-from optitact.sources import Indenter, Scenario, make_source, moments
+from optitact.taxels.sources import Indenter, Scenario, make_source, moments
 
 work = Path(tempfile.mkdtemp())
 

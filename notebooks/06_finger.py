@@ -11,14 +11,14 @@
 # sizes.
 
 # %%
-import numpy as np
 import matplotlib.pyplot as plt
+import numpy as np
 
-import optitact.finger as fg
+from optitact.finger.kinematics import Finger, POSE_SCAN, SingularityError
 from optitact import studies
 from optitact.studies import finger_contour, finger_scanning, finger_slip
 
-finger = fg.Finger()
+finger = Finger()
 print(finger)
 
 # %% [markdown]
@@ -34,11 +34,11 @@ r = finger.rmrc(target, start, max_step=5.0)
 print(f"RMRC: {r.iterations} updates, residual {r.error:.1e} mm, condition number {r.condition:.0f}")
 try:
     finger.rmrc(target, [0.0, 0.3, 0.0])  # stretched arm: J has rank 2
-except fg.SingularityError as exc:
+except SingularityError as exc:
     print("singular start:", str(exc)[:90], "...")
 print("damped least squares from there:", finger.rmrc(target, [0.0, 0.3, 0.0], damping=1.0).error < 1e-3)
 
-base = finger.rmrc_lean(finger.forward(fg.POSE_SCAN), 9.0, fg.POSE_SCAN)
+base = finger.rmrc_lean(finger.forward(POSE_SCAN), 9.0, POSE_SCAN)
 xs = np.linspace(-30, 30, 13)
 held, drift = [], []
 th, z = base.theta, base.z
@@ -47,7 +47,7 @@ for dx in xs:
     q = finger.rmrc_lean(p, 9.0, th, z0=z)
     th, z = q.theta, q.z
     held.append(np.degrees(finger.lean(th, z=z)))
-    drift.append(np.degrees(finger.lean(finger.rmrc(p, fg.POSE_SCAN, z=base.z).theta, z=base.z)))
+    drift.append(np.degrees(finger.lean(finger.rmrc(p, POSE_SCAN, z=base.z).theta, z=base.z)))
 fig, ax = plt.subplots(figsize=(5, 3))
 ax.plot(xs, drift, "o-", label="3 joints (stage fixed)")
 ax.plot(xs, held, "s-", label="3 joints + z-stage")

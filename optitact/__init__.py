@@ -1,110 +1,36 @@
 """optitact: optical three-axis tactile sensing.
 
-Sensor models, the closed-form camera models, the contact model and the CCD model are
-importable at once; the Mitsuba renderer lives in :mod:`optitact.render` and
-is imported only when used (``import optitact`` never imports mitsuba).
+The package is built in layers; a module imports only from its own layer or
+the layers below it (``tests/test_layers.py`` holds the code to this):
+
+1. :mod:`optitact.errors`, ``optitact._validate``, ``optitact._optional``,
+   :mod:`optitact.dask_client`: the foundation (exceptions, argument checks,
+   optional dependencies).
+2. :mod:`optitact.optics`: the sensor, its cameras and OpenCV camera files,
+   the dome's optics, contact mechanics, the CCD.
+3. :mod:`optitact.io`: atomic writes, frames in, tables out, the cache.
+4. :mod:`optitact.pipeline`: frames to readings (baselines, regions, the fast
+   path, standard errors), and batches of files through it.
+5. :mod:`optitact.render` (synthetic frames with Mitsuba) and
+   :mod:`optitact.forces` (force fields, slip, friction).
+6. :mod:`optitact.calib`: calibration sets, fitted curves, presses, error models.
+7. :mod:`optitact.registration`: a real sensor's camera pose and gains.
+8. :mod:`optitact.live`, :mod:`optitact.taxels`, :mod:`optitact.finger`:
+   what runs the stages together (live streams, the taxel sensors as image
+   sources, the robotic finger).
+9. :mod:`optitact.cli` and :mod:`optitact.studies`: the command line and the
+   published experiments and benchmarks; nothing imports them.
+
+Every public name lives in exactly one module and is imported from there
+(``from optitact.pipeline.frame_pipeline import Pipeline``). ``import
+optitact`` imports nothing heavy: subpackages and modules load on first use,
+and the Mitsuba renderer only when a frame is rendered.
 """
 
-from __future__ import annotations
-
-import importlib
-import sys
-import types
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names below load on first use
-    from .camera import Camera, FisheyeCamera, camera_from_dict
-    from .camera_models import OpenCVFisheyeCamera, PinholeCamera, read_opencv_calibration
-    from .ccd import CCD, IntensityScale
-    from .contact import Contacts, cone_loads, contact_patches
-    from .dome_optics import dome_from_pixel, pixel_from_dome
-    from .errors import InputError, OptitactError, OptitactWarning, RenderError, ShapeError
-    from .pipeline import Pipeline
-    from .readings import Readings
-    from .register import register
-    from .sensor import DomeSensor
-    from .setup import Setup, read_setup
+import lazy_loader as _lazy
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "CCD",
-    "Camera",
-    "Contacts",
-    "DomeSensor",
-    "FisheyeCamera",
-    "InputError",
-    "IntensityScale",
-    "OpenCVFisheyeCamera",
-    "OptitactError",
-    "OptitactWarning",
-    "Pipeline",
-    "PinholeCamera",
-    "Readings",
-    "RenderError",
-    "ShapeError",
-    "Setup",
-    "cone_loads",
-    "camera_from_dict",
-    "contact_patches",
-    "dome_from_pixel",
-    "pixel_from_dome",
-    "read_opencv_calibration",
-    "read_setup",
-    "register",
-]
-
-#: Where each name of ``__all__`` lives: ``import optitact`` imports nothing (not even NumPy),
-#: a name's module is imported when the name is first used, so that the command line
-#: starts without the modules its command does not need.
-_HOMES = {
-    "camera": ("Camera", "FisheyeCamera", "camera_from_dict"),
-    "camera_models": ("OpenCVFisheyeCamera", "PinholeCamera", "read_opencv_calibration"),
-    "ccd": ("CCD", "IntensityScale"),
-    "contact": ("Contacts", "cone_loads", "contact_patches"),
-    "dome_optics": ("dome_from_pixel", "pixel_from_dome"),
-    "errors": ("InputError", "OptitactError", "OptitactWarning", "RenderError", "ShapeError"),
-    "pipeline": ("Pipeline",),
-    "readings": ("Readings",),
-    "register": ("register",),  # the function (scipy.optimize is imported when it runs)
-    "sensor": ("DomeSensor",),
-    "setup": ("Setup", "read_setup"),
-}
-_HOME = {name: module for module, names in _HOMES.items() for name in names}
-
-
-def __getattr__(name: str):
-    home = _HOME.get(name)
-    if home is not None:
-        value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
-        globals()[name] = value  # the next look-up is a plain attribute
-        return value
-    if not name.startswith("_"):  # a submodule or subpackage: optitact.calib, optitact.render, ...
-        try:
-            return importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
-
-
-class _Package(types.ModuleType):
-    """The package's module type: ``optitact.register`` stays the function when its submodule loads.
-
-    Importing a submodule binds it as an attribute of the package; the
-    submodule ``optitact.register`` would then hide the function ``register``
-    (it stays in ``sys.modules``, where ``from optitact.register import ...``
-    finds it).
-    """
-
-    def __setattr__(self, name: str, value) -> None:
-        if name == "register" and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
+__getattr__, __dir__, __all__ = _lazy.attach(__name__, submodules=[
+    "calib", "cli", "dask_client", "errors", "finger", "forces", "io", "live", "optics", "pipeline",
+    "registration", "render", "studies", "taxels"])

@@ -18,9 +18,9 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-from .errors import MissingExtraError
+from optitact.errors import MissingExtraError
 
-__all__ = ["MissingExtraError", "EXTRAS", "require"]
+__all__ = ["EXTRAS", "require"]
 
 #: import name -> (extra, PyPI distribution); what :func:`require` knows how to name.
 EXTRAS: dict[str, tuple[str, str]] = {

@@ -6,7 +6,7 @@ import numbers
 
 import numpy as np
 
-from .errors import InputError, ShapeError
+from optitact.errors import InputError, ShapeError
 
 
 def real_array(value, name: str) -> np.ndarray:

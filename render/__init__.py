@@ -7,9 +7,9 @@ Examples
 --------
 >>> import numpy as np, optitact
 >>> from optitact.render import render
->>> s = optitact.DomeSensor.default()
+>>> s = optitact.optics.sensor.DomeSensor.default()
 >>> f = np.zeros((41, 3)); f[0, 2] = 0.5
->>> cam = optitact.FisheyeCamera(width=64, height=48)
+>>> cam = optitact.optics.camera.FisheyeCamera(width=64, height=48)
 >>> img = render(s, f, camera=cam, spp=4, seed=1)
 >>> img.shape, img.dtype
 ((48, 64), dtype('float32'))
@@ -24,16 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from optitact._validate import integer, positive, seed_value
-from optitact.camera import Camera, FisheyeCamera
-from optitact.contact import Contacts, check_forces, contact_patches
+from optitact.optics.camera import Camera, FisheyeCamera
+from optitact.optics.contact import Contacts, check_forces, contact_patches
 from optitact.errors import InputError
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
-from ._backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
-from .scene import RenderSettings
+from optitact.render.backend import select_variant
+from optitact.render.scene import RenderSettings
 
-__all__ = ["render", "render_contacts", "RenderResult", "spot_pixels", "RenderSettings", "select_variant",
-           "TRANSPORTS", "active_variant", "find_libllvm", "PREFERRED_VARIANTS", "pass_seeds"]
+__all__ = ["render", "render_contacts", "RenderResult", "spot_pixels", "TRANSPORTS", "pass_seeds"]
 
 _VARIANT_NAME = re.compile(r"^(scalar|llvm|cuda)(_ad)?_(rgb|mono|spectral)(_polarized)?(_double)?$")
 #: Light transport modes of :func:`render`.
@@ -85,7 +84,7 @@ def _check_camera(camera) -> None:
     """Any camera model renders, with either transport."""
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a FisheyeCamera, got {type(camera).__name__} (or another camera "
-                        f"model of optitact.camera: PinholeCamera, OpenCVFisheyeCamera)")
+                        f"model of optitact.optics.camera: PinholeCamera, OpenCVFisheyeCamera)")
 
 
 def _check_crop(crop, camera: Camera) -> tuple[int, int, int, int] | None:
@@ -118,9 +117,9 @@ def render(sensor: DomeSensor, forces, *, camera: Camera | None = None, spp: int
     forces : (N, 3) array_like
         Element-local forces ``(Fx, Fy, Fz)`` in N.
     camera : Camera, optional
-        Any camera model (:class:`~optitact.FisheyeCamera`,
-        :class:`~optitact.camera_models.PinholeCamera`,
-        :class:`~optitact.camera_models.OpenCVFisheyeCamera`, with its pose);
+        Any camera model (:class:`~optitact.optics.camera.FisheyeCamera`,
+        :class:`~optitact.optics.camera_models.PinholeCamera`,
+        :class:`~optitact.optics.camera_models.OpenCVFisheyeCamera`, with its pose);
         default ``FisheyeCamera()`` (640 x 480); both transports take every
         model.
     spp : int
@@ -213,7 +212,7 @@ def render_contacts(sensor: DomeSensor, contacts: Contacts, *,
                     n_sub: int = 8, table=None, target_error: float | None = None,
                     max_spp: int = 4096, windows=None,
                     full_output: bool = False) -> np.ndarray | RenderResult:
-    """Render given contact patches (e.g. from :func:`optitact.contact_patches`).
+    """Render given contact patches (e.g. from :func:`optitact.optics.contact.contact_patches`).
 
     Parameters are those of :func:`render`, with ``contacts`` in place of
     ``forces``: patches need not come from the contact model (a single patch
@@ -268,7 +267,7 @@ def _render_contacts(sensor, contacts, *, camera, spp, seed, variant, settings, 
         return background.copy(), 0
 
     mi, _ = select_variant(variant)
-    from .scene import build_scene
+    from optitact.render.scene import build_scene
 
     n_pixels = (index.size if index is not None else crop[2] * crop[3] if crop is not None
                 else camera.width * camera.height)
@@ -318,7 +317,9 @@ def _render_contacts(sensor, contacts, *, camera, spp, seed, variant, settings, 
 
 def _render_two_stage(sensor, contacts, camera, settings, *, crop, pixels, background, n_sub, table,
                       variant, progress):
-    from .twostage import EmissionTable, emission_table, noload_radiance, render_two_stage
+    from optitact.render.emission import EmissionTable, emission_table
+    from optitact.render.background import noload_radiance
+    from optitact.render.twostage import render_two_stage
 
     n_sub = integer(n_sub, "n_sub", minimum=1)
     if pixels is not None:
@@ -373,7 +374,7 @@ def _check_pixels(pixels, background, camera: Camera, crop):
 
 def _loaded_region_pixels(sensor: DomeSensor, camera: Camera, forces: np.ndarray):
     """Flat pixels (and their element) the pipeline reads for the elements with ``Fz > 0``."""
-    from optitact.regions import fold_regions
+    from optitact.pipeline.regions import fold_regions
 
     return fold_regions(sensor, camera).region_pixels(forces[:, 2] > 0)
 
@@ -382,7 +383,7 @@ def spot_pixels(sensor: DomeSensor, camera: Camera, forces, *,
                 margin: float = 0.0) -> np.ndarray:
     """(H, W) bool: the pixels the pipeline reads for the loaded elements (where spots can show).
 
-    The union of the region footprints (:func:`optitact.regions.split_regions`)
+    The union of the region footprints (:func:`optitact.pipeline.regions.split_regions`)
     of elements with ``Fz > 0``, grown by ``margin`` pixels.
     """
     f = check_forces(forces, sensor)

@@ -8,8 +8,8 @@ nominal camera's frame, so a registered camera costs no new path trace.
 
 Convention
 ----------
-Global ``(x, y, z)`` mm as in :mod:`optitact.sensor`; pixels ``(row, col)``
-with the origin at the top-left pixel centre, as in :mod:`optitact.camera`.
+Global ``(x, y, z)`` mm as in :mod:`optitact.optics.sensor`; pixels ``(row, col)``
+with the origin at the top-left pixel centre, as in :mod:`optitact.optics.camera`.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from __future__ import annotations
 import numpy as np
 
 from optitact._validate import check_type
-from optitact.camera import Camera, FisheyeCamera
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import Camera, FisheyeCamera
+from optitact.optics.sensor import DomeSensor
 
-from .scene import RenderSettings
+from optitact.render.scene import RenderSettings
 
 __all__ = ["NOLOAD_SEED", "NOLOAD_SPP", "measuring_camera", "noload_radiance"]
 
@@ -49,7 +49,7 @@ def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSetti
     ----------
     sensor : DomeSensor
     camera : Camera
-        Any camera model. A :class:`~optitact.camera.FisheyeCamera` (or any
+        Any camera model. A :class:`~optitact.optics.camera.FisheyeCamera` (or any
         camera with ``resample=False``) is path-traced (about 250 s at
         640 x 480 on 2 CPU cores, once: cached).
     settings : RenderSettings, optional
@@ -74,7 +74,7 @@ def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSetti
     Each pixel's ray of ``camera`` (from its position, exact undistortion) is
     followed through the dome: where it enters the dome's cavity it refracts
     at the inner sphere and meets the outer sphere at ``P``, and the nominal
-    camera's pixel that sees ``P`` (:func:`~optitact.dome_optics.pixel_from_dome`)
+    camera's pixel that sees ``P`` (:func:`~optitact.optics.dome_optics.pixel_from_dome`)
     is sampled bilinearly; where it crosses the base plane (``z = 0``) outside
     the inner sphere (the shell's base, where the rim light enters, and
     beyond) the nominal camera's pixel whose ray crosses the base plane at the
@@ -94,7 +94,7 @@ def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSetti
     no-load frame: see ``tests/test_twostage.py``
     (``test_resampled_background_matches_a_path_traced_one``).
     """
-    from optitact._cache import cached_render
+    from optitact.render.cache import cached_render
 
     check_type(camera, Camera, "camera")
     if isinstance(camera, FisheyeCamera) or not resample:
@@ -110,7 +110,7 @@ def _resample_noload(sensor: DomeSensor, camera: Camera, nominal: FisheyeCamera,
     """:func:`noload_radiance` of ``camera`` resampled from ``nominal``'s frame ``base`` (see its Notes)."""
     from scipy.ndimage import map_coordinates
 
-    from optitact.dome_optics import _check_inside, _trace
+    from optitact.optics.dome_optics import _check_inside, _trace
 
     c = camera.position
     _check_inside(sensor, c)

@@ -1,8 +1,8 @@
 """Closed-form patch coverage: which camera pixels see a contact patch through the dome, and how much.
 
-Each camera pixel's ray (any camera model of :mod:`optitact.camera`: its
-:meth:`~optitact.camera.Camera.ray_from_pixel` from its
-:attr:`~optitact.camera.Camera.position`) is refracted into the acrylic at the
+Each camera pixel's ray (any camera model of :mod:`optitact.optics.camera`: its
+:meth:`~optitact.optics.camera.Camera.ray_from_pixel` from its
+:attr:`~optitact.optics.camera.Camera.position`) is refracted into the acrylic at the
 inner surface (Snell), weighted by the Fresnel transmittance back out, and hit on
 the flat polygon of a contact patch
 (:func:`~optitact.render.scene.patch_polygons`); pixels at a polygon's edge
@@ -12,8 +12,8 @@ pixels into patch radiance, stage 2 to composite the patches as emitters.
 
 Convention
 ----------
-Global ``(x, y, z)`` mm as in :mod:`optitact.sensor`; pixels ``(row, col)``
-with the origin at the top-left pixel centre, as in :mod:`optitact.camera`.
+Global ``(x, y, z)`` mm as in :mod:`optitact.optics.sensor`; pixels ``(row, col)``
+with the origin at the top-left pixel centre, as in :mod:`optitact.optics.camera`.
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ import math
 import numpy as np
 
 from optitact._validate import integer
-from optitact.camera import Camera
-from optitact.contact import Contacts
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import Camera
+from optitact.optics.contact import Contacts
+from optitact.optics.sensor import DomeSensor
 
-from .scene import RenderSettings, patch_polygons
+from optitact.render.scene import RenderSettings, patch_polygons
 
 __all__ = ["patch_coverage", "MIN_SAMPLES_ACROSS"]
 
@@ -39,8 +39,8 @@ def _sample_rays(sensor: DomeSensor, camera: Camera, rows: np.ndarray, cols: np.
     """Refracted rays inside the acrylic for image positions: (origin Q, direction, transmittance).
 
     Any camera model: the pixel's ray ``C + t d`` (``C`` the camera's
-    :attr:`~optitact.camera.Camera.position`, ``d`` its
-    :meth:`~optitact.camera.Camera.ray_from_pixel`, both in the dome frame)
+    :attr:`~optitact.optics.camera.Camera.position`, ``d`` its
+    :meth:`~optitact.optics.camera.Camera.ray_from_pixel`, both in the dome frame)
     meets the inner sphere at ``t = -b + sqrt(b^2 - |C|^2 + r^2)``,
     ``b = C . d`` (``C`` lies inside it). Pixels no ray maps to give NaN rows.
     """

@@ -9,7 +9,7 @@ and lit neighbours give how patches dim or feed each other: the
 :class:`EmissionTable`. The emitted radiance belongs to the patch (Lambertian
 rubber), not to the camera that sees it: the table serves every camera model.
 It is measured once per designed sensor and render settings, through a
-*measuring camera* (an on-axis :class:`~optitact.camera.FisheyeCamera`,
+*measuring camera* (an on-axis :class:`~optitact.optics.camera.FisheyeCamera`,
 default ``FisheyeCamera()``; :func:`emission_table`, announced on stderr,
 cached on disk) or taken from the tables shipped with the package
 (:func:`shipped_table`, ``render/data/``), against the converged no-load frame
@@ -18,8 +18,8 @@ frames from it through any camera.
 
 Convention
 ----------
-Global ``(x, y, z)`` mm as in :mod:`optitact.sensor`; pixels ``(row, col)``
-with the origin at the top-left pixel centre, as in :mod:`optitact.camera`.
+Global ``(x, y, z)`` mm as in :mod:`optitact.optics.sensor`; pixels ``(row, col)``
+with the origin at the top-left pixel centre, as in :mod:`optitact.optics.camera`.
 """
 
 from __future__ import annotations
@@ -33,18 +33,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from optitact._validate import check_keys, check_type, integer
-from optitact.camera import FisheyeCamera
-from optitact.contact import Contacts
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.contact import Contacts
 from optitact.errors import InputError, RenderError
-from optitact.io import atomic_write_text, json_fingerprint
-from optitact.sensor import DomeSensor
+from optitact.io.files import atomic_write_text, json_fingerprint
+from optitact.optics.sensor import DomeSensor
 
-from .background import NOLOAD_SPP, measuring_camera, noload_radiance
-from .coverage import patch_coverage
-from .scene import RenderSettings
+from optitact.render.background import NOLOAD_SPP, measuring_camera, noload_radiance
+from optitact.render.coverage import patch_coverage
+from optitact.render.scene import RenderSettings
 
-__all__ = ["EmissionTable", "emission_table", "shipped_table", "noload_radiance", "band_weights",
-           "TABLE_THETA_DEG", "TABLE_RADII_MM", "TABLE_SPP"]
+__all__ = ["EmissionTable", "emission_table", "shipped_table", "band_weights", "TABLE_THETA_DEG",
+           "TABLE_RADII_MM", "TABLE_SPP"]
 
 #: Polar angles (deg) of the stage-1 table: every cone of the default sensor lies within 3-72 deg.
 TABLE_THETA_DEG = tuple(float(t) for t in np.arange(0.0, 76.1, 2.0))
@@ -313,7 +313,7 @@ def _measure(sensor, camera, settings, probes_c, probes_r, extra_c, extra_r, *, 
     """Path-trace probe patches (plus other patches) and return each probe's ``L_e`` and its stderr."""
     import cv2
 
-    from . import pass_seeds, render_contacts
+    from optitact.render import pass_seeds, render_contacts
 
     n = len(probes_r)
     contacts = _contacts(np.concatenate([probes_c, extra_c]), np.concatenate([probes_r, extra_r]),
@@ -377,7 +377,7 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera | None = None, *,
     The emitted radiance belongs to the patch, not to a camera: the table
     serves every camera model a frame is rendered through. ``camera`` is only
     the camera it is *measured* through: an on-axis
-    :class:`~optitact.camera.FisheyeCamera`, default ``FisheyeCamera()``
+    :class:`~optitact.optics.camera.FisheyeCamera`, default ``FisheyeCamera()``
     (tests measure coarse tables through tiny ones). It is measured on the
     designed sensor (``sensor.as_designed``): as-built element offsets and
     gains are applied at render time and do not change the table.
@@ -396,9 +396,10 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera | None = None, *,
     and how long it should take (re-estimated after the first render), and a
     bar shows its progress.
     """
-    from optitact._cache import cache_dir
+    from optitact.io.cache import cache_dir
 
-    from . import SPP_PER_PASS, select_variant
+    from optitact.render import SPP_PER_PASS
+    from optitact.render.backend import select_variant
 
     check_type(sensor, DomeSensor, "sensor")
     camera = measuring_camera(camera)

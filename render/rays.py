@@ -3,8 +3,8 @@
 Convention
 ----------
 Pixel ``(row, col)`` covers ``[row - 0.5, row + 0.5) x [col - 0.5, col +
-0.5)`` (the package's convention, :mod:`optitact.camera`); rays are unit
-vectors in the dome frame (global ``(x, y, z)``, mm, :mod:`optitact.sensor`).
+0.5)`` (the package's convention, :mod:`optitact.optics.camera`); rays are unit
+vectors in the dome frame (global ``(x, y, z)``, mm, :mod:`optitact.optics.sensor`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from optitact.camera import Camera
+from optitact.optics.camera import Camera
 
 __all__ = ["corner_rays", "interpolate_rays"]
 
@@ -41,7 +41,7 @@ def corner_rays(camera: Camera, crop: tuple[int, int, int, int] | None = None,
     """Dome-frame unit rays of the pixel corners, and which pixels have all four, for the ray-table plugin.
 
     Pixel ``(row, col)`` covers ``[row - 0.5, row + 0.5) x [col - 0.5, col +
-    0.5)`` (the package's convention, :mod:`optitact.camera`); its corners'
+    0.5)`` (the package's convention, :mod:`optitact.optics.camera`); its corners'
     rays come from :meth:`Camera.ray_from_pixel`. Inside a pixel the plugin
     interpolates them bilinearly and normalises; a pixel with a corner no ray
     maps to (NaN, e.g. beyond a pinhole's field) is marked invalid: its

@@ -2,10 +2,10 @@
 
 Convention
 ----------
-Global ``(x, y, z)`` in mm as in :mod:`optitact.sensor`; the film is indexed
-``(row, col)`` like the closed-form camera (:mod:`optitact.camera`). Any
+Global ``(x, y, z)`` in mm as in :mod:`optitact.optics.sensor`; the film is indexed
+``(row, col)`` like the closed-form camera (:mod:`optitact.optics.camera`). Any
 camera model renders: :class:`FisheyeCamera` through its closed-form
-equidistant plugin, the others (:mod:`optitact.camera_models`, with their
+equidistant plugin, the others (:mod:`optitact.optics.camera_models`, with their
 distortion and pose) through a table of their pixel corners' rays
 (:func:`optitact.render.rays.corner_rays`).
 
@@ -22,12 +22,12 @@ from functools import lru_cache
 import numpy as np
 
 from optitact._validate import integer, positive
-from optitact.camera import Camera, FisheyeCamera
-from optitact.contact import Contacts
+from optitact.optics.camera import Camera, FisheyeCamera
+from optitact.optics.contact import Contacts
 from optitact.errors import InputError
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
-from .rays import corner_rays
+from optitact.render.rays import corner_rays
 
 __all__ = ["RenderSettings", "shell_mesh", "patch_polygons", "patch_mesh", "build_scene"]
 
@@ -426,7 +426,7 @@ def build_scene(mi, sensor: DomeSensor, camera: Camera, contacts: Contacts,
         row-major into a film ``PACKED_WIDTH`` wide (see
         :func:`register_fisheye`).
 
-    The camera is any :class:`~optitact.camera.Camera`: a
+    The camera is any :class:`~optitact.optics.camera.Camera`: a
     :class:`FisheyeCamera` gets the closed-form equidistant plugin, another
     model the ray-table plugin, its rays starting at ``camera.position``
     and interpolated between the pixel corners' rays (:func:`~optitact.render.rays.corner_rays`,

@@ -24,47 +24,23 @@ The names of stage 1 and of the coverage are importable from here too
 
 Convention
 ----------
-Global ``(x, y, z)`` mm as in :mod:`optitact.sensor`; pixels ``(row, col)``
-with the origin at the top-left pixel centre, as in :mod:`optitact.camera`.
+Global ``(x, y, z)`` mm as in :mod:`optitact.optics.sensor`; pixels ``(row, col)``
+with the origin at the top-left pixel centre, as in :mod:`optitact.optics.camera`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from optitact.camera import Camera
-from optitact.contact import Contacts
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import Camera
+from optitact.optics.contact import Contacts
+from optitact.optics.sensor import DomeSensor
 
-from .background import NOLOAD_SEED, NOLOAD_SPP, noload_radiance
-from .coverage import MIN_SAMPLES_ACROSS, patch_coverage
-from .emission import (
-    BAND_THETA_DEG,
-    BLOCKER_MAX,
-    BLOCKER_RADIUS_MM,
-    BLOCKER_SPACING_MM,
-    CLUSTER_RADIUS_MM,
-    CLUSTER_THETA_DEG,
-    NEAR_FIELD_DEG,
-    PROBES_PER_RENDER,
-    SHIPPED_TABLES,
-    TABLE_RADII_MM,
-    TABLE_SPP,
-    TABLE_THETA_DEG,
-    TABLE_VERSION,
-    EmissionTable,
-    band_weights,
-    emission_table,
-    shipped_table,
-)
-from .scene import RenderSettings
+from optitact.render.coverage import patch_coverage
+from optitact.render.emission import (EmissionTable)
+from optitact.render.scene import RenderSettings
 
-__all__ = ["EmissionTable", "emission_table", "patch_coverage", "render_two_stage", "noload_radiance",
-           "band_weights", "shipped_table",
-           "TABLE_THETA_DEG", "TABLE_RADII_MM", "TABLE_SPP", "TABLE_VERSION", "SHIPPED_TABLES",
-           "BAND_THETA_DEG", "MIN_SAMPLES_ACROSS", "NOLOAD_SPP", "NOLOAD_SEED", "BLOCKER_RADIUS_MM",
-           "BLOCKER_SPACING_MM", "BLOCKER_MAX", "CLUSTER_THETA_DEG", "CLUSTER_RADIUS_MM", "NEAR_FIELD_DEG",
-           "PROBES_PER_RENDER"]
+__all__ = ["render_two_stage"]
 
 
 def render_two_stage(sensor: DomeSensor, contacts: Contacts, *, camera: Camera,

@@ -57,8 +57,9 @@ def user(tmp_path, tmp_path_factory):
     ``user.run("process", ...)`` runs the entry point as a subprocess (``tests/outside_in.py``);
     ``cached=True`` lets a command use the session's shared render cache instead of an empty one.
     """
-    from outside_in import User
     import os
+
+    from outside_in import User
 
     return User(tmp_path / "work", tmp_path / "cache",
                 shared_cache=pathlib.Path(os.environ["OPTITACT_CACHE_DIR"]))

@@ -20,15 +20,26 @@ import numpy as np
 import pytest
 
 import optitact
-from optitact.baseline import (baseline_noise, compound_poisson_quantile, impulse_density, impulse_floor,
-                               poisson_cdf)
-from optitact.ccd import CCD
 from optitact.errors import InputError
-from optitact.pipeline import Pipeline
-from optitact.steps import impulses, maximum_noise, noise_from_stack, temporal_variance, threshold_sigmas
+from optitact.optics.ccd import CCD
+from optitact.pipeline.baseline import (
+    baseline_noise,
+    compound_poisson_quantile,
+    impulse_density,
+    impulse_floor,
+    poisson_cdf,
+)
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.imageops import (
+    impulses,
+    maximum_noise,
+    noise_from_stack,
+    temporal_variance,
+    threshold_sigmas,
+)
 
-SENSOR = optitact.DomeSensor.default()
-SMALL = optitact.FisheyeCamera(width=160, height=120)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+SMALL = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 H, W = SMALL.shape
 N_EL = SENSOR.n_elements
 #: Normal upper tail at 3 sigmas: the per-pixel false-alarm rate of the default k = 3.
@@ -329,7 +340,7 @@ def path_traced():
     README's load (apex 0.8 N, 0.1 N shear), exposed by the CCD model: 8-bit."""
     from optitact.render import render
 
-    cam = optitact.FisheyeCamera(width=200, height=150)
+    cam = optitact.optics.camera.FisheyeCamera(width=200, height=150)
     ccd = CCD()
     noload = np.stack([ccd.expose(render(SENSOR, np.zeros((N_EL, 3)), camera=cam, spp=16, seed=s), seed=s)
                        for s in range(2, 8)])

@@ -12,17 +12,20 @@ import time
 import cv2
 import numpy as np
 import pytest
+from optitact.calib.document import CalibrationMismatchError
+from optitact.calib.fit import Calibration, fit
+from optitact.calib.sets import CalibrationSet, Design, design_forces, generate
 
 import optitact
-from optitact.calib import (Calibration, CalibrationMismatchError, CalibrationSet, Design,
-                            design_forces, fit, generate)
 from optitact.cli import main
 from optitact.errors import InputError, ShapeError
-from optitact.readings import Readings
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.readings import Readings
 
-SENSOR = optitact.DomeSensor.default()
-TINY = optitact.FisheyeCamera(width=80, height=60)
-SMALL = optitact.FisheyeCamera(width=160, height=120)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+TINY = optitact.optics.camera.FisheyeCamera(width=80, height=60)
+SMALL = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 N = SENSOR.n_elements
 
 
@@ -118,7 +121,7 @@ def test_g_is_increasing(analytic):
 
 def test_clamping_flags(analytic):
     """Above g_max the normal curve goes on along its tangent up to EXTRAPOLATE beyond, then holds; flagged."""
-    from optitact.calib.fit import EXTRAPOLATE
+    from optitact.calib.curves import EXTRAPOLATE
 
     forces, r = analytic
     cal = Calibration.fit(r, forces, sensor=SENSOR, camera=SMALL, model="coupled")
@@ -184,7 +187,7 @@ def test_json_round_trip(cal, analytic, tmp_path):
     assert doc["model"] == "coupled" and doc["fingerprint"] == cal.fingerprint
     back = Calibration.load(path, sensor=SENSOR, camera=SMALL)
     np.testing.assert_array_equal(back.forces(r)[0], cal.forces(r)[0])
-    pipe = optitact.Pipeline(SENSOR, SMALL)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, SMALL)
     assert back.pipeline_options == {"noise_sigma": 0.5, "radius": pipe.grids.radius,
                                      "grid_mm": pipe.grids.grid_mm, "stack_noise": "pooled"}
     assert back.pipeline().threshold == 1.5
@@ -209,9 +212,9 @@ def test_sample_counts_stay_integers_through_a_file(cal, tmp_path):
 def test_fingerprint_mismatch(cal, tmp_path):
     path = cal.save(tmp_path / "c.json")
     with pytest.raises(CalibrationMismatchError, match="camera"):
-        Calibration.load(path, camera=optitact.FisheyeCamera())
+        Calibration.load(path, camera=optitact.optics.camera.FisheyeCamera())
     with pytest.raises(CalibrationMismatchError, match="another sensor"):
-        Calibration.load(path, sensor=optitact.DomeSensor(outer_radius=21.0))
+        Calibration.load(path, sensor=optitact.optics.sensor.DomeSensor(outer_radius=21.0))
     doc = json.loads(path.read_text())
     doc["camera"]["fov_deg"] = 150.0  # edited without a new fingerprint
     path.write_text(json.dumps(doc))
@@ -253,10 +256,10 @@ def test_truncated_oversized_and_missing_files(cal, tmp_path):
 
 
 def test_default_calibration_loads():
-    from optitact.calib import default_calibration
+    from optitact.calib.shipped import default_calibration
 
     c = default_calibration()
-    assert c.sensor == optitact.DomeSensor.default() and c.camera == optitact.FisheyeCamera()
+    assert c.sensor == DomeSensor.default() and c.camera == FisheyeCamera()
     assert c.model == "coupled"
 
 
@@ -272,7 +275,7 @@ def test_generate_stores_everything_and_resumes_identically(tmp_path):
     np.testing.assert_array_equal(a.forces(), design_forces(3, N, Design(), seed=5))
     frames = a.array("frames")
     assert frames.shape == (3, 60, 80) and frames.dtype == np.uint8
-    pipe = optitact.Pipeline(SENSOR, TINY, baseline=a.array("baseline"))
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, TINY, baseline=a.array("baseline"))
     np.testing.assert_array_equal(pipe.process(frames).G, a.readings().G)
     again = generate(tmp_path / "a.zarr", frames=3, keep_frames=True, **GEN)
     np.testing.assert_array_equal(again.readings().G, a.readings().G)
@@ -287,8 +290,8 @@ def test_generate_stores_everything_and_resumes_identically(tmp_path):
 
 
 def test_generate_survives_being_killed(tmp_path):
-    code = ("import optitact\nfrom optitact.calib import generate\n"
-            "generate({path!r}, frames=10, camera=optitact.FisheyeCamera(width=80, height=60), "
+    code = ("import optitact\nfrom optitact.calib.sets import generate\n"
+            "generate({path!r}, frames=10, camera=optitact.optics.camera.FisheyeCamera(width=80, height=60), "
             "spp=2, seed=5, progress=False, render_mode='pixels')\n")
     killed = tmp_path / "killed.zarr"
     proc = subprocess.Popen([sys.executable, "-c", code.format(path=str(killed))],
@@ -528,6 +531,7 @@ def test_render_floor_is_the_spread_between_renders_of_the_same_loads(small_set,
     alone, with the set's own emission table). A second call reads the re-renders from the cache
     instead of rendering them."""
     from optitact.calib.sets import FrameMaker
+
     from optitact.studies import bench_accuracy as ba
 
     held = generate(tmp_path / "h.zarr", frames=3, camera=SMALL, spp=8, seed=21, progress=False,

@@ -1,4 +1,4 @@
-"""Tests for the closed-form fisheye camera in optitact.camera."""
+"""Tests for the closed-form fisheye camera in optitact.optics.camera."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from optitact.camera import FisheyeCamera, dome_from_pixel, pixel_from_dome, radial_map
 from optitact.errors import InputError, ShapeError
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera, dome_from_pixel, pixel_from_dome, radial_map
+from optitact.optics.sensor import DomeSensor
 
 CAMERAS = [
     FisheyeCamera(),

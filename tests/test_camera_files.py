@@ -12,10 +12,11 @@ import json
 import textwrap
 
 import pytest
-
-from optitact.camera_models import OpenCVFisheyeCamera, PinholeCamera, read_opencv_calibration
-from optitact.errors import InputError
 from test_camera_models import write_calibration  # tests/ is on sys.path
+
+from optitact.errors import InputError
+from optitact.optics.camera_models import OpenCVFisheyeCamera, PinholeCamera
+from optitact.optics.opencv_files import read_opencv_calibration
 
 FISHEYE = OpenCVFisheyeCamera(640, 480, fx=205.3, fy=205.1, cx=321.4, cy=238.2,
                               dist=(0.012, -0.004, 0.0011, -0.0003))
@@ -125,7 +126,7 @@ def test_a_camera_dict_reads_in_a_fresh_interpreter(user, cam):
     """A user's script: read a setup's camera with nothing imported but optitact itself."""
     (user.folder / "cam.json").write_text(json.dumps(cam.to_dict()))
     r = user.python("import json, optitact\n"
-                    "cam = optitact.camera_from_dict(json.load(open('cam.json')))\n"
+                    "cam = optitact.optics.camera.camera_from_dict(json.load(open('cam.json')))\n"
                     "print(type(cam).__name__, cam.fx)")
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == [type(cam).__name__, repr(cam.fx)]
@@ -135,7 +136,7 @@ def test_setup_files_load_in_python(user):
     setup = {"sensor": {}, "camera": FISHEYE.to_dict()}
     (user.folder / "setup.json").write_text(json.dumps(setup))
     r = user.python("import optitact\n"
-                    "s = optitact.read_setup('setup.json')\n"
+                    "s = optitact.registration.setup.read_setup('setup.json')\n"
                     "print(s.sensor.n_elements, s.camera.model)")
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["41", "opencv_fisheye"]

@@ -9,17 +9,12 @@ import numpy as np
 import pytest
 
 import optitact
-from optitact.camera import Camera, FisheyeCamera, camera_from_dict, rotation_from_rvec
-from optitact.camera_models import (
-    OpenCVFisheyeCamera,
-    PinholeCamera,
-    camera_from_opencv,
-    pose_from_position,
-    read_opencv_calibration,
-)
 from optitact.errors import InputError
+from optitact.optics.camera import Camera, FisheyeCamera, camera_from_dict, rotation_from_rvec
+from optitact.optics.camera_models import OpenCVFisheyeCamera, PinholeCamera, pose_from_position
+from optitact.optics.opencv_files import camera_from_opencv, read_opencv_calibration
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 R_OUT = SENSOR.outer_radius
 
 
@@ -395,11 +390,11 @@ PIPE_CAMERAS = {
 @pytest.mark.parametrize("name", list(PIPE_CAMERAS))
 def test_pipeline_recovers_spots_with_any_camera(name):
     cam = PIPE_CAMERAS[name]
-    pipe = optitact.Pipeline(SENSOR, cam)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, cam)
     spots = [(0, (0.2, -0.1), 0.35, 100.0), (4, (-0.25, 0.2), 0.35, 100.0), (15, (0.15, 0.2), 0.35, 100.0)]
     r = pipe.process(spot_frame(cam, spots))
-    default = optitact.FisheyeCamera(width=200, height=150)
-    ref = optitact.Pipeline(SENSOR, default).process(spot_frame(default, spots))
+    default = optitact.optics.camera.FisheyeCamera(width=200, height=150)
+    ref = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, default).process(spot_frame(default, spots))
     assert sorted(np.flatnonzero(r.contact)) == [0, 4, 15]
     for e, c, s, a in spots:
         np.testing.assert_allclose(r.u[e], c, rtol=0, atol=0.01)
@@ -414,15 +409,16 @@ def test_pipeline_recovers_spots_with_any_camera(name):
 
 
 def test_top_level_exports():
-    assert issubclass(optitact.PinholeCamera, Camera) and issubclass(optitact.FisheyeCamera, Camera)
-    assert optitact.read_opencv_calibration is read_opencv_calibration
+    assert issubclass(PinholeCamera, Camera) and issubclass(FisheyeCamera, Camera)
+    assert optitact.optics.opencv_files.read_opencv_calibration is read_opencv_calibration
 
 
 def test_a_calibration_for_another_camera_model_saves_and_loads(tmp_path):
     """A calibration keeps its camera's model through save/load; its fingerprint covers the camera."""
     import dataclasses
 
-    from optitact.calib import Calibration, default_calibration
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import default_calibration
 
     shipped = default_calibration()
     cam = PinholeCamera(width=640, height=480, fx=300.0, fy=302.0, cx=321.5, cy=238.0,

@@ -1,4 +1,4 @@
-"""Tests for the camera/CCD model in optitact.ccd."""
+"""Tests for the camera/CCD model in optitact.optics.ccd."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from optitact.ccd import CCD
 from optitact.errors import InputError, ShapeError
+from optitact.optics.ccd import CCD
 
 FIELD = (400, 500)
 N_PIX = FIELD[0] * FIELD[1]

@@ -12,10 +12,10 @@ import pytest
 
 import optitact
 from optitact.cli import main
-from optitact.io import read_forces_csv, write_forces_csv
-from optitact.loads import indenter_load
+from optitact.io.tables import read_forces_csv, write_forces_csv
+from optitact.optics.loads import indenter_load
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 TINY = ["--spp", "2", "--width", "64", "--height", "48"]
 
 
@@ -208,7 +208,8 @@ def fake_study(monkeypatch, tmp_path):
     """A tiny study registered under the name "fake" (the real ones are not needed here)."""
     import types
 
-    from optitact.studies import Study, _protocol
+    from optitact.studies import _protocol
+    from optitact.studies._protocol import Study
 
     def run(seed, *, full, progress):
         return {"value": seed + (10 if full else 1), "series": np.arange(3)}
@@ -276,9 +277,10 @@ def test_core_works_without_the_extras(tmp_path):
         "for m in ('matplotlib', 'zarr', 'dask', 'distributed', 'mitsuba', 'drjit', 'sklearn',\n"
         "          'dtaidistance'):\n"
         "    sys.modules[m] = None\n"
-        "import numpy as np, optitact, optitact.pipeline, optitact.calib, optitact.forces, optitact.batch\n"
+        "import numpy as np, optitact, optitact.pipeline.frame_pipeline, optitact.calib, optitact.forces\n"
+        "import optitact.pipeline.batch\n"
         "import optitact.cli, optitact.render\n"
-        "cal = optitact.calib.default_calibration()\n"
+        "cal = optitact.calib.shipped.default_calibration()\n"
         "r = cal.pipeline().process(np.zeros(cal.camera.shape, np.uint8))\n"
         "field = cal.apply(r)\n"
         "assert field.local.shape == (41, 3)\n"
@@ -296,11 +298,11 @@ def test_core_works_without_the_extras(tmp_path):
 def test_demo_renders_and_processes_a_setup(tmp_path, capsys):
     """demo --setup: the setup's camera (an off-axis OpenCV fisheye, its own 64x48 size) and as-built sensor
     are rendered (path-traced) and read with the shipped calibration transferred to them."""
-    from optitact.camera_models import OpenCVFisheyeCamera
+    from optitact.optics.camera_models import OpenCVFisheyeCamera
 
     f0 = 24 / np.deg2rad(70)
     cam = OpenCVFisheyeCamera(64, 48, fx=f0, fy=f0, cx=32.0, cy=23.0, dist=(0.01, 0, 0, 0), tvec=(0.1, 0, 5.0))
-    sensor = optitact.DomeSensor(element_gain=np.linspace(0.9, 1.1, 41))
+    sensor = optitact.optics.sensor.DomeSensor(element_gain=np.linspace(0.9, 1.1, 41))
     setup = tmp_path / "setup.json"
     setup.write_text(json.dumps({"sensor": sensor.to_dict(), "camera": cam.to_dict()}))
     out = tmp_path / "demo"
@@ -308,7 +310,7 @@ def test_demo_renders_and_processes_a_setup(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "the shipped calibration is transferred to the setup's sensor and camera" in err
     meta = json.loads((out / "forces.json").read_text())
-    assert optitact.camera_from_dict(meta["camera"]) == cam and meta["sensor"] == sensor.to_dict()
+    assert optitact.optics.camera.camera_from_dict(meta["camera"]) == cam and meta["sensor"] == sensor.to_dict()
     assert cv2.imread(str(out / "frame.png"), cv2.IMREAD_UNCHANGED).shape == (48, 64)
     assert np.array(meta["estimated_forces_local_n"]).shape == (41, 3)
     assert main(["demo", "--setup", str(setup), "--out", str(out), "--width", "32", "--height", "24"]) == 2

@@ -13,12 +13,12 @@ import math
 import cv2
 import numpy as np
 import pytest
-
-import optitact
 from test_outputs import loaded_frames  # tests/ is on sys.path
 
-SENSOR = optitact.DomeSensor.default()
-CAM = optitact.FisheyeCamera(width=80, height=60)
+import optitact
+
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+CAM = optitact.optics.camera.FisheyeCamera(width=80, height=60)
 
 
 def _refused(r, *fragments: str) -> None:
@@ -45,7 +45,9 @@ def _photon_stacks(gain: float, top: float, n: int = 40, seed: int = 3):
 
 def _calibration(path):
     """The shipped curves on the 80x60 camera (a calibration file for small test frames)."""
-    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
+    from optitact.calib.document import fingerprint
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import DEFAULT_CALIBRATION
 
     doc = json.loads(DEFAULT_CALIBRATION.read_text())
     doc.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
@@ -100,7 +102,7 @@ def test_calibrate_noise_refuses_stacks_that_cannot_measure_noise(user, case, fr
 def test_pixel_noise_refuses_what_the_command_refuses():
     """The Python API: bool stacks, two bit depths, saturation and impossible gains, each by name."""
     from optitact.errors import InputError, KindError
-    from optitact.uncertainty import MAX_DN_PER_ELECTRON, PixelNoise
+    from optitact.pipeline.uncertainty import MAX_DN_PER_ELECTRON, PixelNoise
 
     noload, pressed = _photon_stacks(gain=0.5, top=200.0, n=4)
     with pytest.raises(KindError, match="got bool"):
@@ -206,7 +208,7 @@ def test_a_header_only_forces_file_is_no_load():
     from pathlib import Path
 
     from optitact.errors import ShapeError
-    from optitact.io import read_forces_csv
+    from optitact.io.tables import read_forces_csv
 
     path = Path(tempfile.mkdtemp()) / "none.csv"
     path.write_text("element,fx,fy,fz\n")
@@ -245,7 +247,7 @@ def test_render_converts_the_units_a_forces_file_names(user):
 @pytest.mark.render
 def test_demo_announces_only_the_renders_it_will_make(user, monkeypatch):
     """With the no-load renders cached (as a first run leaves them) the demo says it reads them."""
-    from optitact._cache import cached_render
+    from optitact.render.cache import cached_render
 
     user.path("setup.json").write_text(json.dumps({"sensor": SENSOR.to_dict(), "camera": CAM.to_dict()}))
     monkeypatch.setenv("OPTITACT_CACHE_DIR", str(user.cache))
@@ -283,5 +285,5 @@ def test_calibrate_test_on_frames_of_another_camera_says_how_to_use_them(user):
 
 @pytest.mark.parametrize("method, size", [("gaussian", 1e9), ("median", 999_999_999)])
 def test_the_pipeline_refuses_a_filter_wider_than_the_frames(method, size):
-    with pytest.raises(optitact.InputError, match="wider than the 80x60 frames' shorter side"):
-        optitact.Pipeline(SENSOR, CAM, filter=method, filter_size=size)
+    with pytest.raises(optitact.errors.InputError, match="wider than the 80x60 frames' shorter side"):
+        optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, filter=method, filter_size=size)

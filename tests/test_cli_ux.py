@@ -17,9 +17,9 @@ import pytest
 
 import optitact
 from optitact.cli import main, parser
-from optitact.io import write_forces_csv
+from optitact.io.tables import write_forces_csv
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 TINY = ["--spp", "2", "--width", "64", "--height", "48"]
 
 
@@ -36,8 +36,8 @@ def _known_frame(h: int = 48, w: int = 64, dtype=np.uint8) -> np.ndarray:
 def fake_render(monkeypatch):
     """Replace the render step of ``demo``/``render`` by a known frame; records the calls."""
     import optitact.cli.demo as demo
-    from optitact.camera import FisheyeCamera
-    from optitact.ccd import CCD
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.ccd import CCD
 
     calls = []
 
@@ -64,7 +64,8 @@ def forces_csv(tmp_path):
 @pytest.fixture
 def fake_study(monkeypatch, tmp_path):
     """A tiny study "fake" with a published figure, a published text and an unmatched entry."""
-    from optitact.studies import Study, _protocol
+    from optitact.studies import _protocol
+    from optitact.studies._protocol import Study
 
     def run(seed, *, full, progress):
         return {"value": seed + 1, "rate": {"left": 0.8125}, "series": np.arange(500)}
@@ -144,9 +145,9 @@ def test_key_figures_of_an_incomplete_result_is_an_input_error():
 # ---------------------------------------------------------------- item 2: plots that explain
 def test_overlay_has_a_title_a_legend_and_units():
     from optitact.cli.demo import overlay
-    from optitact.camera import FisheyeCamera
-    from optitact.contact import contact_patches
-    from optitact.loads import indenter_load
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.contact import contact_patches
+    from optitact.optics.loads import indenter_load
 
     camera = FisheyeCamera(width=64, height=48)
     forces = indenter_load(SENSOR)
@@ -199,10 +200,12 @@ def test_render_view_option(fake_render, forces_csv, tmp_path):
 
 # ------------------------------------------------------------ item 3: the baseline is announced
 def test_noload_baseline_is_announced_with_an_estimate_and_a_bar(monkeypatch, capsys):
-    import optitact._cache
-    from optitact.camera import FisheyeCamera
-    from optitact.ccd import CCD
+    import optitact.render.cache
+
+    import optitact.io.cache
     from optitact.cli import demo
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.ccd import CCD
 
     seeds = []
 
@@ -211,7 +214,7 @@ def test_noload_baseline_is_announced_with_an_estimate_and_a_bar(monkeypatch, ca
         seeds.append(seed)
         return np.zeros(camera.shape, np.float32)
 
-    monkeypatch.setattr(optitact._cache, "cached_render", fake_cached_render)
+    monkeypatch.setattr(optitact.render.cache, "cached_render", fake_cached_render)
     camera = FisheyeCamera(width=64, height=48)
     args = argparse.Namespace(spp=64, seed=5, variant=None)
     base = demo._noload_baseline(SENSOR, camera, CCD(), args, seconds_per_frame=22.0)

@@ -1,4 +1,4 @@
-"""Tests for the contact model in optitact.contact."""
+"""Tests for the contact model in optitact.optics.contact."""
 
 from __future__ import annotations
 
@@ -6,15 +6,17 @@ import dataclasses
 import math
 
 import numpy as np
+import optitact.calib
+import optitact.forces
 import pytest
 
 import optitact
-import optitact.calib
-import optitact.forces
-import optitact.pipeline
-from optitact.contact import TIP_MARGIN, Contacts, cone_loads, contact_patches
+import optitact.pipeline.frame_pipeline
 from optitact.errors import InputError, ShapeError
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.contact import TIP_MARGIN, Contacts, cone_loads, contact_patches
+from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.sensor import DomeSensor
 
 N = 41
 K = 8
@@ -470,28 +472,28 @@ def test_wrong_dtype(sensor, func, value, dtype_name):
 
 
 # A sensor or camera of the wrong kind is a TypeError naming the argument (it was an AttributeError).
-_S, _CAM = optitact.DomeSensor.default(), optitact.FisheyeCamera(width=80, height=60)
+_S, _CAM = DomeSensor.default(), FisheyeCamera(width=80, height=60)
 _Z = np.zeros((41, 3))
 
 
 @pytest.mark.parametrize("call, name", [
-    (lambda: optitact.contact_patches("dome", _Z), "sensor"),
-    (lambda: optitact.cone_loads("dome", _Z), "sensor"),
-    (lambda: __import__("optitact.loads").loads.indenter_load("dome"), "sensor"),
-    (lambda: __import__("optitact.loads").loads.random_load("dome"), "sensor"),
-    (lambda: optitact.forces.global_from_local("dome", _Z), "sensor"),
-    (lambda: optitact.forces.local_from_global("dome", _Z), "sensor"),
-    (lambda: optitact.pixel_from_dome(_S.element_positions[:2], sensor="dome", camera=_CAM), "sensor"),
-    (lambda: optitact.pixel_from_dome(_S.element_positions[:2], sensor=_S, camera="cam"), "camera"),
-    (lambda: optitact.dome_from_pixel([[30.0, 40.0]], sensor="dome", camera=_CAM), "sensor"),
-    (lambda: optitact.dome_from_pixel([[30.0, 40.0]], sensor=_S, camera="cam"), "camera"),
+    (lambda: optitact.optics.contact.contact_patches("dome", _Z), "sensor"),
+    (lambda: optitact.optics.contact.cone_loads("dome", _Z), "sensor"),
+    (lambda: __import__("optitact.optics.loads").optics.loads.indenter_load("dome"), "sensor"),
+    (lambda: __import__("optitact.optics.loads").optics.loads.random_load("dome"), "sensor"),
+    (lambda: optitact.optics.force_frames.global_from_local("dome", _Z), "sensor"),
+    (lambda: optitact.optics.force_frames.local_from_global("dome", _Z), "sensor"),
+    (lambda: pixel_from_dome(_S.element_positions[:2], sensor="dome", camera=_CAM), "sensor"),
+    (lambda: pixel_from_dome(_S.element_positions[:2], sensor=_S, camera="cam"), "camera"),
+    (lambda: optitact.optics.dome_optics.dome_from_pixel([[30.0, 40.0]], sensor="dome", camera=_CAM), "sensor"),
+    (lambda: optitact.optics.dome_optics.dome_from_pixel([[30.0, 40.0]], sensor=_S, camera="cam"), "camera"),
     (lambda: _CAM.max_polar_angle("dome"), "sensor"),
     (lambda: _CAM.dome_mask("dome"), "sensor"),
-    (lambda: optitact.pipeline.split_regions("dome", _CAM), "sensor"),
-    (lambda: optitact.pipeline.split_regions(_S, "cam"), "camera"),
-    (lambda: optitact.pipeline.check_frames(np.zeros((60, 80)), "cam"), "camera"),
-    (lambda: optitact.Pipeline("dome", _CAM), "sensor"),
-    (lambda: optitact.calib.fingerprint("dome", _CAM, {}), "sensor"),
+    (lambda: optitact.pipeline.regions.split_regions("dome", _CAM), "sensor"),
+    (lambda: optitact.pipeline.regions.split_regions(_S, "cam"), "camera"),
+    (lambda: optitact.pipeline.imageops.check_frames(np.zeros((60, 80)), "cam"), "camera"),
+    (lambda: optitact.pipeline.frame_pipeline.Pipeline("dome", _CAM), "sensor"),
+    (lambda: optitact.calib.document.fingerprint("dome", _CAM, {}), "sensor"),
 ])
 def test_wrong_sensor_or_camera_kind_is_a_type_error_naming_it(call, name):
     with pytest.raises(TypeError, match=rf"^{name} must be a \w+, got str"):

@@ -35,10 +35,10 @@ BLOCKER = textwrap.dedent(f"""
 FRAMES = textwrap.dedent("""
     import numpy as np, cv2
     import optitact
-    sensor, camera = optitact.DomeSensor.default(), optitact.FisheyeCamera()
+    sensor, camera = optitact.optics.sensor.DomeSensor.default(), optitact.optics.camera.FisheyeCamera()
     forces = np.zeros((41, 3))
     forces[0] = (0.0, 0.0, 0.6)
-    contacts = optitact.contact_patches(sensor, forces)
+    contacts = optitact.optics.contact.contact_patches(sensor, forces)
     rows, cols = np.mgrid[0:camera.height, 0:camera.width]
     rng = np.random.default_rng(0)
     base = np.clip(rng.normal(6.0, 0.4, (camera.height, camera.width)), 0, 255)
@@ -63,8 +63,8 @@ def test_blocker_really_blocks(tmp_path):
 def test_frame_to_forces_in_python_without_extras(tmp_path):
     code = FRAMES + textwrap.dedent(f"""
         import json, sys
-        from optitact import calib
-        cal = calib.default_calibration()
+        from optitact.calib.shipped import default_calibration
+        cal = default_calibration()
         field = cal.apply(cal.pipeline(baseline=noload).process(frame))
         heavy = sorted(m for m in sys.modules if m.split(".")[0] in {OPTIONAL!r})
         print(json.dumps({{"fz": field.local[:, 2].tolist(), "heavy": heavy}}))
@@ -155,10 +155,9 @@ def test_the_command_line_loads_only_its_command(tmp_path):
             pass
         loaded = sorted(m for m in sys.modules if m.startswith(("optitact.cli.", "optitact.studies", "mitsuba",
                                                                 "zarr", "dask", "sklearn", "matplotlib")))
-        from optitact import Pipeline, register
+        from optitact.pipeline.frame_pipeline import Pipeline
+        from optitact.registration.pose import register
         assert callable(register) and not isinstance(register, type(sys))
-        import optitact.register  # the submodule: optitact.register stays the function
-        assert optitact.register is register
         print(loaded, os.environ.get("OPENBLAS_NUM_THREADS"))
     """)
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}

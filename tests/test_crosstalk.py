@@ -7,15 +7,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from optitact.calib import Calibration, default_calibration
 from optitact.calib.crosstalk import CrossTalk
-from optitact.calib.curves import zero_shear_centroid
 from optitact.calib.curves import grey_for_force as _grey_for_force
+from optitact.calib.curves import zero_shear_centroid
+from optitact.calib.fit import Calibration
 from optitact.calib.patterns import pattern_forces
 from optitact.calib.sets import Design
+from optitact.calib.shipped import default_calibration
+
 from optitact.errors import InputError
-from optitact.readings import Readings
+from optitact.pipeline.readings import Readings
 
 CAL = replace(default_calibration(), crosstalk=None)  # the shipped curves, each element on its own
 SENSOR = CAL.sensor

@@ -8,15 +8,16 @@ import time
 
 import numpy as np
 import pytest
+from optitact.calib.sets import CalibrationSet, generate
 
 import optitact
-from optitact.calib import CalibrationSet, generate
+from optitact.optics.camera import FisheyeCamera
 
 pytestmark = pytest.mark.render
 
 distributed = pytest.importorskip("distributed")
 
-GEN = dict(frames=12, camera=optitact.FisheyeCamera(width=80, height=60), spp=32, seed=8, progress=False,
+GEN = dict(frames=12, camera=FisheyeCamera(width=80, height=60), spp=32, seed=8, progress=False,
            render_mode="pixels")
 NAMES = ("G", "u", "contact", "saturated", "forces", "seeds", "baseline")
 
@@ -76,12 +77,13 @@ def test_bad_scheduler_is_a_type_error(tmp_path):
 
 def test_process_many_recordings_on_the_cluster(cluster, tmp_path):
     """optitact process --scheduler: one task per file, the same CSV as a local run."""
-    from optitact.cli import main
     from optitact.render import render
 
-    cam = optitact.FisheyeCamera(width=80, height=60)
-    s = optitact.DomeSensor.default()
-    ccd = optitact.CCD()
+    from optitact.cli import main
+
+    cam = optitact.optics.camera.FisheyeCamera(width=80, height=60)
+    s = optitact.optics.sensor.DomeSensor.default()
+    ccd = optitact.optics.ccd.CCD()
     noload = render(s, np.zeros((41, 3)), camera=cam, spp=8, seed=1)
     load = np.zeros((41, 3))
     load[[0, 3], 2] = 0.8

@@ -11,12 +11,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from optitact.calib import Calibration, default_calibration
 from optitact.calib.error_model import MIN_SAMPLES, ErrorModel
+from optitact.calib.fit import Calibration
+from optitact.calib.shipped import default_calibration
+
 from optitact.errors import InputError, ShapeError
-from optitact.readings import Readings
-from optitact.uncertainty import coverage
+from optitact.pipeline.readings import Readings
+from optitact.pipeline.uncertainty import coverage
 
 FLOOR = np.array([0.001, 0.002, 0.003])
 RELATIVE = np.array([0.006, 0.0, 0.012])

@@ -9,11 +9,12 @@ import sys
 
 import numpy as np
 import pytest
+from optitact.forces import ForceField
 
-from optitact.camera import FisheyeCamera
 from optitact.errors import InputError, ShapeError
-from optitact.forces import ForceField, global_from_local, local_from_global
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.force_frames import global_from_local, local_from_global
+from optitact.optics.sensor import DomeSensor
 
 N = 41
 R = 20.0
@@ -309,7 +310,7 @@ def _as_people_write(ff, *, bom=False, delimiter=",", units=False, order=(0, 1, 
 ])
 def test_forces_files_as_people_write_them(sensor, tmp_path, style):
     """Excel's BOM, units in headers, other column orders, sparse rows, ';' or tab: read by column name."""
-    from optitact.io import read_forces_csv
+    from optitact.io.tables import read_forces_csv
 
     f = np.zeros((N, 3))
     f[[0, 5, 20]] = [(0.1, -0.05, 0.6), (0.0, 0.02, 0.4), (-1.0 / 3.0, 0.0, 0.3)]
@@ -331,7 +332,7 @@ def test_forces_files_as_people_write_them(sensor, tmp_path, style):
     ("Fx [N];Fy [N];Force\n0;0;1\n", r"no column fz in the header.*delimiter ';' \(semicolon\)"),
 ])
 def test_forces_files_that_cannot_be_read_say_why(sensor, tmp_path, text, match):
-    from optitact.io import read_forces_csv
+    from optitact.io.tables import read_forces_csv
 
     path = tmp_path / "f.csv"
     path.write_text(text)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.forces import global_from_local, local_from_global
-from optitact.sensor import DomeSensor
+from optitact.optics.force_frames import global_from_local, local_from_global
+from optitact.optics.sensor import DomeSensor
 
 N = 41
 

@@ -1,4 +1,4 @@
-"""Frame files (optitact.frames): lossy and truncated sources, bad .npy files, frame sizes."""
+"""Frame files (optitact.io.frames): lossy and truncated sources, bad .npy files, frame sizes."""
 
 import re
 import struct
@@ -10,12 +10,13 @@ import cv2
 import numpy as np
 import pytest
 
-from optitact import DomeSensor, FisheyeCamera, Pipeline
-from optitact.camera import MAX_FRAME_PIXELS
 from optitact.cli import main
 from optitact.errors import InputError, ShapeError
-from optitact.frames import FramesWarning, count_frames, expand_sources, iter_frames
-from optitact.regions import region_weights, split_regions
+from optitact.io.frames import FramesWarning, count_frames, expand_sources, iter_frames
+from optitact.optics.camera import MAX_FRAME_PIXELS, FisheyeCamera
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.regions import region_weights, split_regions
 
 W, H = 64, 48
 N_FRAMES = 40
@@ -212,7 +213,7 @@ def test_region_precompute_memory_stays_near_what_it_keeps():
 
 # ----------------------------------------------------------------------------- read_ahead
 def test_read_ahead_gives_the_items_in_order_and_raises_where_they_fail():
-    from optitact.frames import read_ahead
+    from optitact.io.frames import read_ahead
 
     assert list(read_ahead(iter(range(1000)), depth=3)) == list(range(1000))
 
@@ -230,7 +231,7 @@ def test_read_ahead_gives_the_items_in_order_and_raises_where_they_fail():
 def test_read_ahead_closed_early_stops_its_thread_and_closes_the_source():
     import threading
 
-    from optitact.frames import read_ahead
+    from optitact.io.frames import read_ahead
 
     closed = threading.Event()
 
@@ -255,7 +256,7 @@ def test_read_ahead_closed_early_stops_its_thread_and_closes_the_source():
 def test_read_ahead_starts_at_once_and_closing_it_unread_closes_the_source():
     import threading
 
-    from optitact.frames import read_ahead
+    from optitact.io.frames import read_ahead
 
     started, closed = threading.Event(), threading.Event()
 
@@ -280,7 +281,7 @@ def test_a_read_ahead_dropped_unclosed_stops_its_thread():
     import gc
     import threading
 
-    from optitact.frames import read_ahead
+    from optitact.io.frames import read_ahead
 
     closed = threading.Event()
 
@@ -298,7 +299,7 @@ def test_a_read_ahead_dropped_unclosed_stops_its_thread():
 
 
 def test_read_ahead_depth_is_four_batches_within_the_byte_bound():
-    from optitact.frames import READ_AHEAD_BYTES, read_ahead_depth
+    from optitact.io.frames import READ_AHEAD_BYTES, read_ahead_depth
 
     assert read_ahead_depth((480, 640), 32) == min(128, READ_AHEAD_BYTES // (2 * 480 * 640))
     assert read_ahead_depth((60, 80), 3) == 12
@@ -325,7 +326,7 @@ def test_a_grey_video_is_read_as_grey_with_the_levels_of_a_colour_read(tmp_path)
 
 
 def test_a_video_read_ahead_is_the_video(tmp_path):
-    from optitact.frames import read_ahead
+    from optitact.io.frames import read_ahead
 
     path = _video(tmp_path / "v.avi", "FFV1", _frames())
     direct = list(iter_frames([path]))
@@ -359,7 +360,7 @@ def _colour_mjpg(path, saturated):
 
 def test_a_grey_mjpg_video_is_read_as_its_luma_plane_with_the_levels_of_a_colour_read(tmp_path):
     """JPEG's full-range luma is the grey image: read without the BGR round trip, the same levels."""
-    from optitact.frames import _luma_reader
+    from optitact.io.frames import _luma_reader
 
     path = _video(tmp_path / "m.avi", "MJPG", _frames())
     cap = cv2.VideoCapture(str(path))
@@ -389,7 +390,7 @@ def test_a_colour_mjpg_video_reads_its_luma_within_the_round_trips_rounding(tmp_
 
 def test_a_video_whose_luma_read_differs_is_read_through_bgr(tmp_path):
     """Saturated colours clip in the BGR round trip: the luma check fails and the read is OpenCV's BGR."""
-    from optitact.frames import _luma_reader
+    from optitact.io.frames import _luma_reader
 
     path = _colour_mjpg(tmp_path / "s.avi", saturated=True)
     cap = cv2.VideoCapture(str(path))

@@ -2,18 +2,13 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
+from optitact.forces.contact_events import ContactDetector, detect_contact
+from optitact.forces.friction import friction_coefficient
+from optitact.forces.slip import SlipDetector, detect_slip
 
 from optitact.errors import InputError, ShapeError
-from optitact.forces import (
-    ContactDetector,
-    SlipDetector,
-    detect_contact,
-    detect_slip,
-    friction_coefficient,
-)
 
 
 # ---------------------------------------------------------------------------- friction

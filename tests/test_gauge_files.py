@@ -1,7 +1,7 @@
 """The force gauge's CSV as researchers write it: units in the header, impossible forces, two columns of
 one name, other encodings, absurd lines.
 
-In-process tests read the CSV with :func:`optitact.calib.read_presses`; outside-in tests run the installed
+In-process tests read the CSV with :func:`optitact.calib.gauge.read_presses`; outside-in tests run the installed
 ``optitact calibrate fit`` on a few frames of a stand-in sensor (two-stage renders, 10 % brighter than the
 model) with the same presses written in different units, and on broken gauge files.
 """
@@ -13,12 +13,13 @@ import warnings
 
 import numpy as np
 import pytest
+from optitact.calib.fit import Calibration
+from optitact.calib.gauge import read_presses
 
 import optitact
-from optitact.calib import Calibration, read_presses
 from optitact.errors import InputError, OptitactWarning, ShapeError
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 N_EL = SENSOR.n_elements
 SOURCES = ["noload.png", "press_001.png", "press_002.png"]
 
@@ -135,8 +136,10 @@ def test_zero_fz_on_every_row_is_refused(tmp_path):
 
 
 def test_fit_presses_refuses_impossible_arrays():
-    from optitact.calib import default_calibration, fit_presses
-    from optitact.readings import Readings
+    from optitact.calib.press_fit import fit_presses
+    from optitact.calib.shipped import default_calibration
+
+    from optitact.pipeline.readings import Readings
 
     G = np.full((2, N_EL), 1e4)
     r = Readings(G, np.zeros((2, N_EL, 2)), np.ones((2, N_EL), bool), np.zeros((2, N_EL), bool))
@@ -198,10 +201,12 @@ def test_a_line_over_128_kib_is_refused(tmp_path, line):
 def presses(tmp_path_factory):
     """Frames of a stand-in 10 % brighter than the model: a no-load frame and 5 mixed-load frames (every
     element pressed), rendered two-stage with the shipped emission table; and their forces (N)."""
-    from optitact.calib import Design, default_calibration, design_forces
-    from optitact.ccd import CCD
-    from optitact.io import write_png
+    from optitact.calib.sets import Design, design_forces
+    from optitact.calib.shipped import default_calibration
     from optitact.render import render
+
+    from optitact.io.files import write_png
+    from optitact.optics.ccd import CCD
 
     folder = tmp_path_factory.mktemp("gauge-presses")
     frames = folder / "frames"
@@ -229,7 +234,7 @@ def presses_csv(forces, unit: str, encoding: str = "utf-8") -> bytes:
 @pytest.fixture(scope="module")
 def in_newtons(presses, tmp_path_factory):
     """The calibration refined from the shipped one on the presses written in N (in this process)."""
-    from optitact.calib import fit_from_frames
+    from optitact.calib.press_fit import fit_from_frames
 
     frames, forces = presses
     gauge = tmp_path_factory.mktemp("gauge-n") / "gauge.csv"

@@ -15,16 +15,19 @@ import warnings
 
 import numpy as np
 import pytest
+from optitact.calib.fit import Calibration
+from optitact.calib.shipped import DEFAULT_CALIBRATION, default_calibration
 
 import optitact
-from optitact.calib import DEFAULT_CALIBRATION, Calibration, default_calibration
-from optitact.ccd import CCD, IntensityScale, dn_ratio
 from optitact.errors import InputError
-from optitact.pipeline import Pipeline, noise_from_one_frame
+from optitact.optics.ccd import CCD, IntensityScale, dn_ratio
+from optitact.optics.dome_optics import pixel_from_dome
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.imageops import noise_from_one_frame
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 LOADED = (0, 5, 20)
-SMALL = optitact.FisheyeCamera(width=160, height=120)
+SMALL = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 
 
 def _radiance(camera, loaded=LOADED, amplitude=0.3):
@@ -32,7 +35,7 @@ def _radiance(camera, loaded=LOADED, amplitude=0.3):
     rows, cols = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
     rr = np.hypot(rows - camera.height / 2, cols - camera.width / 2) / (camera.height / 2)
     img = 0.01 + 0.12 * np.minimum(rr, 1.3) ** 2
-    px = optitact.pixel_from_dome(SENSOR.element_positions[list(loaded)], sensor=SENSOR, camera=camera)
+    px = pixel_from_dome(SENSOR.element_positions[list(loaded)], sensor=SENSOR, camera=camera)
     for r, c in px:
         img += amplitude * np.exp(-((rows - r) ** 2 + (cols - c) ** 2) / (2 * 3.0**2))
     return img
@@ -85,7 +88,7 @@ def test_isolated_bright_pixels_make_no_phantom_contacts(scene):
 
 def test_impulses_are_found_and_spots_are_not():
     """steps.impulses: single bright pixels over a noisy background are impulses, a 3-px spot is not."""
-    from optitact.steps import impulses
+    from optitact.pipeline.imageops import impulses
 
     rng = np.random.default_rng(0)
     f = rng.normal(20.0, 1.0, (1, 60, 80))
@@ -102,7 +105,7 @@ def test_impulses_are_found_and_spots_are_not():
 def test_integer_frames_give_the_float_paths_values_to_the_bit(dtype):
     """impulses and noise_from_one_frame on integer frames (exact integer sums, histogram medians,
     a looked-up noise per level) give what the float64 arithmetic gives on the same frames."""
-    from optitact.steps import impulses
+    from optitact.pipeline.imageops import impulses
 
     info = np.iinfo(dtype)
     rng = np.random.default_rng(int(info.bits))
@@ -133,7 +136,7 @@ def test_one_frame_noise_estimate_matches_the_ccd_model():
 
 
 def test_one_frame_baseline_too_small_warns():
-    cam = optitact.FisheyeCamera(width=30, height=20)
+    cam = optitact.optics.camera.FisheyeCamera(width=30, height=20)
     with pytest.warns(UserWarning, match="too small to estimate its noise"):
         pipe = Pipeline(SENSOR, cam, baseline=np.full(cam.shape, 10, np.uint8))
     assert pipe.noise_map is None

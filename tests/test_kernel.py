@@ -1,4 +1,4 @@
-"""The fast method's two kernels (optitact._kernel): numba and the NumPy fallback give the same readings.
+"""The fast method's two kernels (pipeline.kernel): numba and the NumPy fallback give the same readings.
 
 Truth is the NumPy path (``np.bincount`` over gathered entries, itself checked against the
 reference steps in test_pipeline.py): the compiled pass must match it bit for bit (array_equal)
@@ -20,16 +20,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-import optitact
-from optitact import _kernel
-from optitact.errors import InputError, OptitactWarning
-from optitact.pipeline import CHUNK_FRAMES, Pipeline
-
 import test_pipeline
 
-SENSOR = optitact.DomeSensor.default()
-SMALL = optitact.FisheyeCamera(width=160, height=120)
+import optitact
+from optitact.errors import InputError, OptitactWarning
+from optitact.pipeline import kernel as _kernel
+from optitact.pipeline.fastpath import CHUNK_FRAMES
+from optitact.pipeline.frame_pipeline import Pipeline
+
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+SMALL = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 DTYPES = [np.uint8, np.uint16, np.float32, np.float64]
 FIELDS = ("G", "u", "contact", "saturated")
 noisy_scene = test_pipeline.noisy_scene  # the pipeline tests' fixture, shared
@@ -146,7 +146,7 @@ def test_chunks_cover_every_entry_once(n_pixels):
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_numba_equals_numpy_where_regions_touch_and_on_tiny_frames(dtype):
     """Wide regions share pixels (two entries per pixel); on the smallest frames the last chunk is clamped."""
-    for camera, radius in ((SMALL, 3.5), (optitact.FisheyeCamera(width=12, height=9), None)):
+    for camera, radius in ((SMALL, 3.5), (optitact.optics.camera.FisheyeCamera(width=12, height=9), None)):
         frames, base = random_frames(dtype, n=4, seed=3, shape=(max(camera.height, 12), camera.width))
         frames, base = frames[:, :camera.height], base[:camera.height]
         with warnings.catch_warnings():  # a 12x9 one-frame baseline is too small to measure noise: said
@@ -172,7 +172,7 @@ def test_threaded_batch_equals_serial(pipes, kernel):
 
 def test_default_threads_split_long_stacks_only(pipes):
     """threads=None: every core, at least MIN_FRAMES_PER_THREAD frames each; readings as one thread's."""
-    from optitact._fastpath import MIN_FRAMES_PER_THREAD, thread_count
+    from optitact.pipeline.fastpath import MIN_FRAMES_PER_THREAD, thread_count
 
     assert thread_count(None, 4, 1) == 1 and thread_count(None, 4, 2 * MIN_FRAMES_PER_THREAD - 1) == 1
     assert thread_count(None, 4, 2 * MIN_FRAMES_PER_THREAD) == 2 and thread_count(None, 4, 1000) == 4
@@ -184,7 +184,7 @@ def test_default_threads_split_long_stacks_only(pipes):
 
 def test_run_blocks_covers_every_item_once_in_order():
     """Blocks cover 0 .. n - 1 once, results in block order, whichever thread took a block."""
-    from optitact._fastpath import BLOCKS_PER_THREAD, run_blocks
+    from optitact.pipeline.fastpath import BLOCKS_PER_THREAD, run_blocks
 
     for n, threads in ((1, 2), (5, 1), (7, 3), (1000, 2), (2 * BLOCKS_PER_THREAD + 1, 2)):
         parts = run_blocks(lambda a, b: list(range(a, b)), n, threads)
@@ -202,7 +202,7 @@ def test_run_blocks_covers_every_item_once_in_order():
 
 
 def test_run_blocks_errors_reach_the_caller():
-    from optitact._fastpath import run_blocks
+    from optitact.pipeline.fastpath import run_blocks
 
     done = []
 
@@ -248,13 +248,14 @@ BLOCK = textwrap.dedent("""
             return None
     sys.meta_path.insert(0, _Missing())
     import numpy as np, optitact
-    s, cam = optitact.DomeSensor.default(), optitact.FisheyeCamera(width=160, height=120)
-    p = optitact.Pipeline(s, cam)
+    s = optitact.optics.sensor.DomeSensor.default()
+    cam = optitact.optics.camera.FisheyeCamera(width=160, height=120)
+    p = optitact.pipeline.frame_pipeline.Pipeline(s, cam)
     frame = np.zeros(cam.shape, np.uint8)
     frame[50:60, 70:90] = 200
     out = {"auto": p.kernel, "G": p.process(frame).G.tolist(), "numba_imported": "numba" in sys.modules}
     try:
-        optitact.Pipeline(s, cam, kernel="numba")
+        optitact.pipeline.frame_pipeline.Pipeline(s, cam, kernel="numba")
     except Exception as exc:
         out["error"] = [type(exc).__name__, str(exc), isinstance(exc, ImportError)]
     print(json.dumps(out))
@@ -276,7 +277,7 @@ def test_without_numba_auto_falls_back_and_numba_names_the_extra(tmp_path):
 
 @needs_numba
 def test_compiled_kernel_caches_in_the_user_cache_folder():
-    from optitact._cache import cache_dir
+    from optitact.io.cache import cache_dir
 
     Pipeline(SENSOR, SMALL, kernel="numba").process(np.zeros(SMALL.shape, np.uint8))
     assert any((cache_dir() / "numba").rglob("*.nbi"))

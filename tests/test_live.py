@@ -1,4 +1,4 @@
-"""Live streams: ``optitact.live.stream`` and ``optitact process --camera`` (issue 18)."""
+"""Live streams: ``optitact.live.stream.stream`` and ``optitact process --camera`` (issue 18)."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import test_process_cli
 from test_process_cli import CAM, SENSOR, SPOTS, read_csv, spot_frame
 
 import optitact
-import optitact.live as live
+import optitact.live.stream as live
 from optitact.cli import main
-from optitact.live import LiveWriter, source_label, stream
+from optitact.live.stream import LiveWriter, source_label, stream
 
 WAIT = 30.0  # seconds a test waits for an event before failing (never reached when the code is right)
 
@@ -235,7 +235,7 @@ def test_view_without_a_display_says_so_once_and_goes_on(tmp_path, frames, cal, 
 
 
 def test_stream_releases_the_capture_when_closed_or_collected(frames):
-    pipe = optitact.Pipeline(SENSOR, CAM)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)
     for policy in ("all", "newest"):  # a camera that never ends: closed while its reader runs
         capture = FakeCapture(frames, endless=True)
         gen = stream(capture, pipeline=pipe, policy=policy, baseline_frames=0)
@@ -255,7 +255,7 @@ def test_stream_releases_the_capture_when_closed_or_collected(frames):
 
 def test_stream_limits_baseline_and_colour(frames):
     """max_frames, a baseline argument, and colour frames read as OpenCV's BGR2GRAY grey."""
-    pipe = optitact.Pipeline(SENSOR, CAM)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)
     got = list(stream(FakeCapture(frames), pipeline=pipe, max_frames=2, baseline_frames=3))
     assert [(f.index, f.baseline) for f in got] == [(0, True), (1, True)]
     # a colour camera: B, G, R planes of different brightness
@@ -298,7 +298,7 @@ def test_live_errors_exit_2_and_leave_no_file(tmp_path, frames, cal, monkeypatch
 
 
 def test_a_lossy_recording_read_as_a_stream_warns_like_process(tmp_path, frames, cal):
-    from optitact.frames import FramesWarning
+    from optitact.io.frames import FramesWarning
 
     path = tmp_path / "mjpg.avi"
     vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (CAM.width, CAM.height), False)

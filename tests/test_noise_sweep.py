@@ -37,7 +37,7 @@ def test_nominal_centroid_efficiency(nominal):
 
 
 def test_contact_flag_at_the_noise_floor_flickers_as_predicted():
-    out = ns.flicker_check(target_rate=0.5, n_frames=240, seed=2, camera=optitact.FisheyeCamera())
+    out = ns.flicker_check(target_rate=0.5, n_frames=240, seed=2, camera=optitact.optics.camera.FisheyeCamera())
     assert out["deterministic"] and out["ok"], out
     assert 0.25 < out["predicted_rate"] < 0.75
 
@@ -53,7 +53,7 @@ def test_the_study_is_registered_and_draws_its_figure(nominal, tmp_path):
 
 def _small_run(seed, *, full, progress):
     """A stand-in for the full study (tested above): one level, one flicker check."""
-    small = optitact.FisheyeCamera(width=160, height=120)
+    small = optitact.optics.camera.FisheyeCamera(width=160, height=120)
     sw = ns.noise_sweep(n_frames=10, factors=(1.0,), seed=seed, camera=small)
     return dict(sw, flicker=[{"ok": True, "target_rate": 0.5}])
 

@@ -18,13 +18,14 @@ import numpy as np
 import pytest
 
 import optitact
-from optitact.batch import process_files
-from optitact.readings import Readings
 from optitact.cli import main
 from optitact.errors import InputError
+from optitact.pipeline.batch import process_files
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.readings import Readings
 
-SENSOR = optitact.DomeSensor.default()
-CAM = optitact.FisheyeCamera(width=80, height=60)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+CAM = optitact.optics.camera.FisheyeCamera(width=80, height=60)
 HEADER = "frame,source,element,G,ux,uy,contact,saturated"
 
 
@@ -42,7 +43,7 @@ def _previous_run(tmp_path):
     """A complete table from an earlier run, at the path the failing run writes to."""
     np.save(tmp_path / "good.npy", _frames(4))
     out = tmp_path / "out.csv"
-    process_files([tmp_path / "good.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out)
+    process_files([tmp_path / "good.npy"], pipeline=Pipeline(SENSOR, CAM), out=out)
     return out, out.read_bytes()
 
 
@@ -52,7 +53,7 @@ def test_an_error_mid_stream_keeps_the_complete_file_and_names_the_partial_one(t
     frames[5, 3, 4] = np.nan  # batches: the baseline frame 0, then 1-2, 3-4 are written, 5-6 fails
     np.save(tmp_path / "rec.npy", frames)
     with pytest.raises(InputError) as err:
-        process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out, batch=2)
+        process_files([tmp_path / "rec.npy"], pipeline=Pipeline(SENSOR, CAM), out=out, batch=2)
     msg = str(err.value)
     partial = tmp_path / "out.partial.csv"
     assert msg.startswith("rec.npy, frame 5: the frame must be finite")
@@ -60,7 +61,7 @@ def test_an_error_mid_stream_keeps_the_complete_file_and_names_the_partial_one(t
     assert out.read_bytes() == before  # the earlier complete table is untouched
     rows = _rows(partial)
     assert len(rows) == 5 * 41 and rows[-1]["source"] == "rec.npy#4" and rows[-1]["element"] == "40"
-    want = optitact.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames[:5])
+    want = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames[:5])
     got = np.array([float(r["G"]) for r in rows]).reshape(5, 41)
     np.testing.assert_allclose(got, want.G, rtol=1e-12, atol=0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["good.npy", "out.csv", "out.partial.csv", "rec.npy"]
@@ -72,7 +73,7 @@ def test_an_error_before_any_frame_is_written_leaves_nothing(tmp_path):
     frames[0, 0, 0] = np.nan  # in the baseline frame: no row is written
     np.save(tmp_path / "rec.npy", frames)
     with pytest.raises(InputError, match=r"^rec\.npy, frame 0: .*finite.*pixel \(row 0, col 0\)$"):
-        process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out)
+        process_files([tmp_path / "rec.npy"], pipeline=Pipeline(SENSOR, CAM), out=out)
     assert out.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["good.npy", "out.csv", "rec.npy"]
 
@@ -91,8 +92,11 @@ def test_the_command_says_where_the_partial_rows_are(tmp_path, capsys):
 
 def test_a_writer_that_fails_part_way_keeps_both_tables_partial(tmp_path, monkeypatch):
     """With forces: both tables (per element, per frame) are kept as .partial, neither under the real name."""
-    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
-    from optitact.io import ReadingsWriter
+    from optitact.calib.document import fingerprint
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import DEFAULT_CALIBRATION
+
+    from optitact.io.tables import ReadingsWriter
 
     shipped = json.loads(DEFAULT_CALIBRATION.read_text())
     shipped.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
@@ -119,8 +123,11 @@ def test_a_writer_that_fails_part_way_keeps_both_tables_partial(tmp_path, monkey
 KILLED = textwrap.dedent("""
     import os, sys
     import optitact
-    from optitact.batch import process_files
-    from optitact.io import ReadingsWriter
+    from optitact.pipeline.batch import process_files
+    from optitact.io.tables import ReadingsWriter
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.sensor import DomeSensor
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     real, calls = ReadingsWriter.write, []
 
@@ -132,7 +139,7 @@ KILLED = textwrap.dedent("""
             os._exit(9)                # killed: no cleanup, no exception handler
 
     ReadingsWriter.write = write_then_die
-    pipe = optitact.Pipeline(optitact.DomeSensor.default(), optitact.FisheyeCamera(width=80, height=60))
+    pipe = Pipeline(DomeSensor.default(), FisheyeCamera(width=80, height=60))
     process_files([sys.argv[1]], pipeline=pipe, out=sys.argv[3], batch=3)
 """)
 
@@ -152,7 +159,7 @@ def test_a_killed_run_never_leaves_half_a_table_under_the_real_name(tmp_path):
     assert held[0].startswith(HEADER) and len(held) == 1 + 4 * 41  # the baseline frame and a batch of 3
     assert sorted(p.name for p in tmp_path.glob("*.csv")) == ["out.csv"]
     # the next run to the same path completes and replaces the old table with the whole new one
-    process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out)
+    process_files([tmp_path / "rec.npy"], pipeline=Pipeline(SENSOR, CAM), out=out)
     assert len(_rows(out)) == 10 * 41 and out.read_text().startswith(HEADER)
     # ... and removes what the killed run left (its process is gone): the hidden rows and the lock
     assert sorted(p.name for p in tmp_path.iterdir()) == ["good.npy", "out.csv", "rec.npy"]
@@ -188,7 +195,9 @@ def test_force_field_to_csv_is_atomic(tmp_path, monkeypatch):
 
 # ---------------------------------------------------------------------------- Parquet and the CSV's numbers
 def _calibration():
-    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
+    from optitact.calib.document import fingerprint
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import DEFAULT_CALIBRATION
 
     shipped = json.loads(DEFAULT_CALIBRATION.read_text())
     shipped.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
@@ -209,7 +218,7 @@ def loaded_frames(n: int, seed: int) -> np.ndarray:
 def test_parquet_table_equals_the_csv_of_the_same_run(tmp_path, monkeypatch):
     pd = pytest.importorskip("pandas")
     pq = pytest.importorskip("pyarrow.parquet")
-    from optitact import tables
+    from optitact.io import tables
 
     monkeypatch.setattr(tables, "PARQUET_ROW_GROUP", 41)  # a row group per write: several in a short run
     np.save(tmp_path / "rec.npy", loaded_frames(9, seed=6))
@@ -237,9 +246,12 @@ def test_parquet_table_equals_the_csv_of_the_same_run(tmp_path, monkeypatch):
 KILLED_PARQUET = textwrap.dedent("""
     import os, sys
     import optitact
-    from optitact import tables
-    from optitact.batch import process_files
-    from optitact.io import ReadingsWriter
+    from optitact.io import tables
+    from optitact.pipeline.batch import process_files
+    from optitact.io.tables import ReadingsWriter
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.sensor import DomeSensor
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     tables.PARQUET_ROW_GROUP = 41   # a row group per frame: some reach the disk before the kill
     real, calls = ReadingsWriter.write, []
@@ -251,7 +263,7 @@ KILLED_PARQUET = textwrap.dedent("""
             os._exit(9)
 
     ReadingsWriter.write = write_then_die
-    pipe = optitact.Pipeline(optitact.DomeSensor.default(), optitact.FisheyeCamera(width=80, height=60))
+    pipe = Pipeline(DomeSensor.default(), FisheyeCamera(width=80, height=60))
     process_files([sys.argv[1]], pipeline=pipe, out=sys.argv[2], batch=3)
 """)
 
@@ -268,7 +280,7 @@ def test_a_killed_parquet_run_leaves_no_file_under_the_real_name(tmp_path):
     assert (tmp_path / left[0]).stat().st_size > 0  # row groups were written, but no footer: not a table
     with pytest.raises(Exception, match="(?i)parquet"):
         pq.read_table(tmp_path / left[0])
-    process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out)
+    process_files([tmp_path / "rec.npy"], pipeline=Pipeline(SENSOR, CAM), out=out)
     assert pq.read_table(out).num_rows == 10 * 41
 
 
@@ -279,7 +291,7 @@ def test_a_failed_parquet_run_keeps_a_readable_partial_table(tmp_path):
     np.save(tmp_path / "rec.npy", frames)
     out = tmp_path / "out.parquet"
     with pytest.raises(InputError, match="out.partial.parquet, a partial table"):
-        process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=out, batch=2)
+        process_files([tmp_path / "rec.npy"], pipeline=Pipeline(SENSOR, CAM), out=out, batch=2)
     table = pq.read_table(tmp_path / "out.partial.parquet")
     assert table.num_rows == 5 * 41 and table.column("source")[-1].as_py() == "rec.npy#4"
     assert not out.exists()
@@ -287,7 +299,7 @@ def test_a_failed_parquet_run_keeps_a_readable_partial_table(tmp_path):
 
 def test_parquet_without_pyarrow_is_one_line_naming_the_extra(tmp_path, monkeypatch, capsys):
     from optitact.errors import MissingExtraError
-    from optitact.io import ReadingsWriter
+    from optitact.io.tables import ReadingsWriter
 
     monkeypatch.setitem(sys.modules, "pyarrow", None)
     monkeypatch.setitem(sys.modules, "pyarrow.parquet", None)
@@ -306,8 +318,8 @@ def test_parquet_without_pyarrow_is_one_line_naming_the_extra(tmp_path, monkeypa
 
 def test_csv_numbers_read_back_bit_for_bit(tmp_path):
     """The block formatting writes every float as repr does: shortest digits, -0.0, nan, tiny and huge."""
-    from optitact.io import ReadingsWriter
-    from optitact.readings import Readings
+    from optitact.io.tables import ReadingsWriter
+    from optitact.pipeline.readings import Readings
 
     rng = np.random.default_rng(8)
     g = rng.random((3, 41)) * 10.0 ** rng.integers(-300, 300, (3, 41))
@@ -330,9 +342,10 @@ def test_csv_numbers_read_back_bit_for_bit(tmp_path):
 
 
 def test_the_table_gets_standard_error_columns_after_the_others(tmp_path):
-    from optitact.calib import default_calibration
-    from optitact.readings import Readings
-    from optitact.tables import ReadingsWriter
+    from optitact.calib.shipped import default_calibration
+
+    from optitact.io.tables import ReadingsWriter
+    from optitact.pipeline.readings import Readings
 
     cal = default_calibration()
     r = Readings(cal.g_max * 0.5, np.zeros((41, 2)), np.ones(41, bool), np.zeros(41, bool))
@@ -358,7 +371,7 @@ def test_the_table_gets_standard_error_columns_after_the_others(tmp_path):
 def test_process_writes_standard_errors_that_grow_with_the_noise(tmp_path):
     """``noise`` (and ``process --stderr``): fx_se, fy_se, fz_se after the other columns; the model error
     alone where nothing is in contact, and more for frames read with a noisier camera (a larger gain)."""
-    from optitact.uncertainty import PixelNoise
+    from optitact.pipeline.uncertainty import PixelNoise
 
     np.save(tmp_path / "rec.npy", loaded_frames(6, seed=3))
     cal = _calibration()
@@ -386,11 +399,11 @@ def test_frames_started_by_the_caller_give_the_same_table_and_are_closed(tmp_pat
     """process_files(frames=...): a read-ahead begun before the pipeline was built; the table is the same."""
     import threading
 
-    from optitact.frames import expand_sources, iter_frames, read_ahead
+    from optitact.io.frames import expand_sources, iter_frames, read_ahead
 
     np.save(tmp_path / "rec.npy", _frames(9, seed=7))
     src = [tmp_path / "rec.npy"]
-    pipe = optitact.Pipeline(SENSOR, CAM)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)
     process_files(src, pipeline=pipe, out=tmp_path / "a.csv", batch=4)
     ahead = read_ahead(iter_frames(expand_sources(src)), depth=3)
     done = process_files(src, pipeline=pipe, out=tmp_path / "b.csv", batch=4, frames=ahead)
@@ -407,13 +420,13 @@ def test_process_files_restores_the_switch_interval(tmp_path):
     """The shorter thread switch interval of a run that decodes ahead is undone, also when the run fails."""
     np.save(tmp_path / "rec.npy", _frames(4))
     before = sys.getswitchinterval()
-    process_files([tmp_path / "rec.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=tmp_path / "a.csv")
+    process_files([tmp_path / "rec.npy"], pipeline=Pipeline(SENSOR, CAM), out=tmp_path / "a.csv")
     assert sys.getswitchinterval() == before
     bad = _frames(4)
     bad[2, 0, 0] = np.nan
     np.save(tmp_path / "bad.npy", bad)
     with pytest.raises(InputError):
-        process_files([tmp_path / "bad.npy"], pipeline=optitact.Pipeline(SENSOR, CAM), out=tmp_path / "b.csv")
+        process_files([tmp_path / "bad.npy"], pipeline=Pipeline(SENSOR, CAM), out=tmp_path / "b.csv")
     assert sys.getswitchinterval() == before
 
 
@@ -429,7 +442,7 @@ def _photon_stacks(gain: float, read: float, n: int = 40, seed: int = 11):
 
 def test_calibrate_noise_measures_the_conversion_gain_and_process_reads_the_file(tmp_path, capsys):
     """calibrate noise recovers a known gain; process --stderr --noise reads as --dn-per-electron does."""
-    from optitact.uncertainty import PixelNoise
+    from optitact.pipeline.uncertainty import PixelNoise
 
     noload, pressed = _photon_stacks(gain=0.5, read=1.5)
     np.save(tmp_path / "noload.npy", noload)

@@ -234,9 +234,11 @@ def test_a_failed_per_frame_write_cuts_both_tables_back_to_the_same_whole_frame(
     """In process: the per-frame table's write fails after the element table's: both end on frame 1."""
     import errno
 
-    from optitact import DomeSensor, FisheyeCamera, Pipeline
-    from optitact._partial import PartialCSV
-    from optitact.tables import ReadingsWriter
+    from optitact.io.partial import PartialCSV
+    from optitact.io.tables import ReadingsWriter
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.sensor import DomeSensor
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     sensor = DomeSensor.default()
     readings = Pipeline(sensor, FisheyeCamera(width=W, height=H), baseline=_frames(1)[0]).process(_frames(4))
@@ -279,7 +281,7 @@ def test_a_failed_per_frame_write_cuts_both_tables_back_to_the_same_whole_frame(
 
 def test_two_writers_of_one_table_in_one_process(tmp_path):
     from optitact.errors import InputError
-    from optitact.tables import ReadingsWriter
+    from optitact.io.tables import ReadingsWriter
 
     with ReadingsWriter(tmp_path / "f.csv"):
         with pytest.raises(InputError, match=rf"f\.csv is being written by another run \(pid {os.getpid()};"):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from optitact import DomeSensor
 from optitact.calib.patterns import FAMILIES, PATTERNS, pattern_forces
 from optitact.calib.sets import Design, design_forces
+
+from optitact.optics.sensor import DomeSensor
 
 SENSOR = DomeSensor.default()
 DESIGN = Design()

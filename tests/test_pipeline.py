@@ -1,4 +1,4 @@
-"""Tests for the frame pipeline (optitact.pipeline) and its readings (optitact.readings).
+"""Tests for the frame pipeline (pipeline.frame_pipeline) and its readings (pipeline.readings).
 
 Ground truths are independent of the code under test: Gaussian spots drawn at
 known dome points (energy ``A 2 pi s^2`` and centre known in closed form, pixel
@@ -23,27 +23,24 @@ import numpy as np
 import pytest
 
 import optitact
-from optitact.ccd import CCD
 from optitact.errors import InputError, ShapeError
-from optitact.loads import random_load
-from optitact.pipeline import (
-    CHUNK_FRAMES,
-    REGION_MARGIN_MM,
-    Pipeline,
+from optitact.optics.ccd import CCD
+from optitact.optics.loads import random_load
+from optitact.pipeline.fastpath import CHUNK_FRAMES
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.imageops import (
     apply_threshold,
-    default_region_radius,
     denoise,
-    dewarp,
     estimate_noise,
-    integrate,
     readings_from_moments,
     subtract_baseline,
 )
-from optitact.readings import Readings
+from optitact.pipeline.readings import Readings
+from optitact.pipeline.regions import REGION_MARGIN_MM, default_region_radius, dewarp, integrate
 
-SENSOR = optitact.DomeSensor.default()
-CAM = optitact.FisheyeCamera(width=200, height=150)    # accuracy tests and renders
-SMALL = optitact.FisheyeCamera(width=160, height=120)  # stacks, dtypes, errors
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+CAM = optitact.optics.camera.FisheyeCamera(width=200, height=150)    # accuracy tests and renders
+SMALL = optitact.optics.camera.FisheyeCamera(width=160, height=120)  # stacks, dtypes, errors
 N_EL = SENSOR.n_elements
 R = SENSOR.outer_radius
 DTYPES = [np.uint8, np.uint16, np.float32, np.float64]
@@ -481,13 +478,13 @@ def test_default_region_radius():
     assert default_region_radius(SENSOR) == pytest.approx(reach, rel=1e-15)
     assert reach == pytest.approx(2.2)
     # A crowded sensor: half the closest geodesic spacing, found by brute force.
-    tight = optitact.DomeSensor(ring_counts=(1, 8), ring_polar_deg=(0.0, 10.0))
+    tight = optitact.optics.sensor.DomeSensor(ring_counts=(1, 8), ring_polar_deg=(0.0, 10.0))
     p = tight.element_positions
     d = [tight.outer_radius * math.acos(min(1.0, float(p[i] @ p[j]) / tight.outer_radius**2))
          for i in range(len(p)) for j in range(i)]
     assert min(d) / 2 < reach
     np.testing.assert_allclose(default_region_radius(tight), min(d) / 2, rtol=1e-12, atol=0)
-    lone = optitact.DomeSensor(ring_counts=(1,), ring_polar_deg=(0.0,))
+    lone = optitact.optics.sensor.DomeSensor(ring_counts=(1,), ring_polar_deg=(0.0,))
     assert default_region_radius(lone) == pytest.approx(reach, rel=1e-15)
 
 
@@ -782,7 +779,7 @@ def test_baseline_stack_is_averaged_and_read_only(small):
 
 def test_replacing_how_a_pipeline_runs_copies_it_without_measuring_again(small, small_scene):
     """kernel and threads change no reading: replace() copies the pipeline, not measuring the baseline again."""
-    from optitact.pipeline import RUN_OPTIONS
+    from optitact.pipeline.frame_pipeline import RUN_OPTIONS
 
     frame, base, _ = small_scene
     pipe = small.with_baseline(base.astype(np.uint8))
@@ -855,7 +852,7 @@ def test_stream_errors(small):
 
 
 def test_take_baseline_splits_the_first_frames():
-    from optitact.pipeline import take_baseline
+    from optitact.pipeline.baseline import take_baseline
 
     items = [(f"f{k}", np.full((2, 3), k, np.uint8)) for k in range(5)]
     base, head, rest = take_baseline(items, 2, frame=lambda item: item[1])
@@ -869,7 +866,7 @@ def test_take_baseline_splits_the_first_frames():
 
 def test_region_weights_seam(small):
     """The public seam the renderer uses: the pixels each element's region reads."""
-    from optitact.regions import region_weights, split_regions
+    from optitact.pipeline.regions import region_weights, split_regions
 
     w = small.region_weights
     assert small.replace(k=4.0).region_weights is w  # shared in memory per geometry
@@ -1018,8 +1015,10 @@ def test_contact_needs_more_than_the_noise_floor(small):
 def test_processing_frames_never_imports_mitsuba():
     code = (
         "import sys, numpy as np, optitact\n"
-        "cam = optitact.FisheyeCamera(width=64, height=48)\n"
-        "p = optitact.Pipeline(optitact.DomeSensor.default(), cam, filter='gaussian')\n"
+        "cam = optitact.optics.camera.FisheyeCamera(width=64, height=48)\n"
+        "from optitact.optics.sensor import DomeSensor\n"
+        "from optitact.pipeline.frame_pipeline import Pipeline\n"
+        "p = Pipeline(DomeSensor.default(), cam, filter='gaussian')\n"
         "p.process(np.zeros(cam.shape, np.uint8))\n"
         "p.replace(method='reference').process(np.zeros(cam.shape))\n"
         "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
@@ -1029,14 +1028,14 @@ def test_processing_frames_never_imports_mitsuba():
 
 def test_process_command_imports_only_what_it_needs(tmp_path):
     """`optitact process` with a calibration, on .npy frames: no renderer, cluster, learning, plots, stores."""
-    frames = np.zeros((3,) + optitact.FisheyeCamera().shape, np.uint8)
+    frames = np.zeros((3,) + optitact.optics.camera.FisheyeCamera().shape, np.uint8)
     frames[2, 200:210, 300:310] = 60
     np.save(tmp_path / "frames.npy", frames)
     out = tmp_path / "r.csv"
     code = (
         "import sys\n"
-        "import optitact._kernel\n"
-        "optitact._kernel.available = lambda: False  # NumPy sums: no numba compile in a fresh cache\n"
+        "import optitact.pipeline.kernel\n"
+        "optitact.pipeline.kernel.available = lambda: False  # NumPy sums: no numba compile in a fresh cache\n"
         "from optitact.cli import main\n"
         f"rc = main(['process', {str(tmp_path / 'frames.npy')!r}, '--calibration', 'default',\n"
         f"           '--out', {str(out)!r}])\n"
@@ -1085,7 +1084,7 @@ def test_poisson_cdf_is_scipys_without_importing_it():
     """The impulse floor's Poisson CDF (no scipy.special at start-up) equals scipy.special.pdtr."""
     from scipy.special import pdtr
 
-    from optitact.baseline import poisson_cdf
+    from optitact.pipeline.baseline import poisson_cdf
 
     k = np.arange(0, 250)
     mean = np.array([0.0, 1e-9, 0.02, 0.7, 4.0, 23.5, 90.0])
@@ -1122,8 +1121,8 @@ def test_tail_gaussian_adds_back_what_the_threshold_clips(method, kernel):
 @pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 1001])
 def test_start_up_median_and_quantile_are_numpys_to_the_bit(n):
     """The baseline's noise and impulse statistics use NumPy's median and quantile, re-done without numpy.ma."""
-    from optitact.baseline import _quantile
-    from optitact.steps import _median
+    from optitact.pipeline.baseline import _quantile
+    from optitact.pipeline.imageops import _median
 
     rng = np.random.default_rng(n)
     for _ in range(20):

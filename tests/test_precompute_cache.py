@@ -1,4 +1,4 @@
-"""The pipeline's precompute cached on disk (optitact.regions.fold_regions, optitact._cache.cached_arrays).
+"""The pipeline's precompute cached on disk (fold_regions, cached_arrays).
 
 Truths: the weights folded from the grids themselves (``region_weights(split_regions(...))``,
 an independent route through the (E, n, n) grids), compared byte for byte; a cache file
@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 import optitact
-from optitact import regions
-from optitact.regions import fold_regions, region_weights, split_regions
+from optitact.pipeline import regions
+from optitact.pipeline.regions import fold_regions, region_weights, split_regions
 
-SENSOR = optitact.DomeSensor.default()
-CAM = optitact.FisheyeCamera(width=160, height=120)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+CAM = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 FIELDS = ("pixel", "label", "weights", "pixel_area", "n_pixels")
 
 
@@ -76,7 +76,7 @@ def test_cold_cached_and_grid_folds_are_identical(cache, truth):
 def test_the_key_holds_camera_and_options(cache):
     folder, calls = cache
     fold_regions(SENSOR, CAM)
-    fold_regions(SENSOR, optitact.FisheyeCamera(width=160, height=120, fov_deg=190.0))
+    fold_regions(SENSOR, optitact.optics.camera.FisheyeCamera(width=160, height=120, fov_deg=190.0))
     wide = fold_regions(SENSOR, CAM, radius=3.0)
     assert len(calls) == 3 and len(list(folder.glob("*.npz"))) == 3
     assert wide.radius == 3.0
@@ -141,11 +141,11 @@ def test_pipeline_readings_identical_cold_and_cached_and_grids_deferred(cache, m
     frames = rng.integers(0, 40, (3,) + CAM.shape).astype(np.uint8)
     monkeypatch.setenv("OPTITACT_PRECOMPUTE_CACHE", "0")
     regions._fold_cached.cache_clear()
-    cold = optitact.Pipeline(SENSOR, CAM, kernel="numpy").process(frames)
+    cold = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, kernel="numpy").process(frames)
     monkeypatch.delenv("OPTITACT_PRECOMPUTE_CACHE")
-    optitact.Pipeline(SENSOR, CAM)  # writes the file
+    optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)  # writes the file
     regions._fold_cached.cache_clear()
-    pipe = optitact.Pipeline(SENSOR, CAM, kernel="numpy")  # reads it
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, kernel="numpy")  # reads it
     assert len(calls) == 2
     warm = pipe.process(frames)
     for name in ("G", "u", "contact", "saturated"):
@@ -165,7 +165,7 @@ def test_pipeline_readings_identical_cold_and_cached_and_grids_deferred(cache, m
 def test_the_folder_keeps_the_most_recently_used_files(cache, monkeypatch):
     import os
 
-    from optitact import _cache
+    from optitact.io import cache as _cache
 
     folder, calls = cache
     monkeypatch.setattr(_cache, "CACHE_KEEP", 2)

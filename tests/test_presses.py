@@ -13,17 +13,19 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from optitact.calib.curves import zero_shear_centroid
+from optitact.calib.fit import Calibration
+from optitact.calib.gauge import read_presses
+from optitact.calib.held_out import press_curve, press_report
+from optitact.calib.press_fit import MIN_PRESSES_REFINE, MIN_PRESSES_SCRATCH, fit_presses
+from optitact.calib.shipped import default_calibration
 
 import optitact
-from optitact.calib import (Calibration, default_calibration, fit_presses, press_curve, press_report,
-                            read_presses)
-from optitact.calib.curves import zero_shear_centroid
-from optitact.calib.presses import MIN_PRESSES_REFINE, MIN_PRESSES_SCRATCH
 from optitact.errors import InputError, OptitactWarning, ShapeError
-from optitact.forces import global_from_local
-from optitact.readings import Readings
+from optitact.optics.force_frames import global_from_local, local_from_global
+from optitact.pipeline.readings import Readings
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 N_EL = SENSOR.n_elements
 
 
@@ -217,8 +219,8 @@ def write(tmp_path, text, name="gauge.csv"):
 def test_read_presses_names_indices_units_and_global(tmp_path):
     g = np.zeros((N_EL, 3))
     g[9] = (0.05, -0.02, -0.4)  # pointing into the dome
-    local = optitact.forces.local_from_global(SENSOR, g)[9]
-    np.testing.assert_allclose(global_from_local(SENSOR, optitact.forces.local_from_global(SENSOR, g))[9], g[9])
+    local = optitact.optics.force_frames.local_from_global(SENSOR, g)[9]
+    np.testing.assert_allclose(global_from_local(SENSOR, local_from_global(SENSOR, g))[9], g[9])
     text = ("\ufeffFz (N);Element;Frame;Fx [N];Fy (N);Frame_of_reference\n"
             "0.5;3;press_001.png;0.1;0;local\n"
             "0.2;4;press_001.png;0;0;\n"
@@ -281,11 +283,12 @@ def test_cli_fit_and_test_on_rendered_presses(tmp_path, capsys):
     refines the shipped calibration to within 3 % FS per axis on the held-out frames (0.3 % in Fz),
     below the shipped calibration unrefined (3.3-5.6 %); `calibrate test --json` reports it;
     from scratch 9 presses fit too."""
-    from optitact.calib import Design, design_forces
-    from optitact.ccd import CCD
-    from optitact.cli import main
-    from optitact.io import write_png
+    from optitact.calib.sets import Design, design_forces
     from optitact.render import render
+
+    from optitact.cli import main
+    from optitact.io.files import write_png
+    from optitact.optics.ccd import CCD
 
     cam = default_calibration().camera
     ccd = CCD()

@@ -12,10 +12,11 @@ import pytest
 import optitact
 from optitact.cli import main
 from optitact.errors import InputError
-from optitact.frames import FramesWarning, count_frames, expand_sources, iter_frames
+from optitact.io.frames import FramesWarning, count_frames, expand_sources, iter_frames
+from optitact.pipeline.frame_pipeline import Pipeline
 
-SENSOR = optitact.DomeSensor.default()
-CAM = optitact.FisheyeCamera(width=160, height=120)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+CAM = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 SPOTS = {0: (0.3, -0.2), 5: (-0.4, 0.1), 20: (0.0, 0.5)}  # element -> centre (mm, local)
 
 
@@ -62,7 +63,7 @@ def test_process_folder_matches_the_pipeline(tmp_path, frames, capsys):
     assert list(rows[0]) == ["frame", "source", "element", "G", "ux", "uy", "contact", "saturated"]
     assert len(rows) == 3 * 41 and rows[41]["source"] == "f01.png"
     g, u, contact = table(rows, 3)
-    want = optitact.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames)
+    want = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames)
     np.testing.assert_allclose(g, want.G, rtol=1e-8, atol=0)
     np.testing.assert_allclose(u, want.u, rtol=0, atol=1e-8)
     assert np.array_equal(contact, want.contact)
@@ -82,7 +83,7 @@ def test_process_npy_stack_with_baseline_file_and_16_bit_png(tmp_path, frames):
     assert main(["process", str(tmp_path / "stack.npy"), "--out", str(out), "--baseline",
                  str(tmp_path / "stack.npy"), "--baseline-frames", "5"]) == 0
     g, _, _ = table(read_csv(out), 2)
-    want = optitact.Pipeline(SENSOR, CAM, baseline=frames[1:]).process(frames[1:])
+    want = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, baseline=frames[1:]).process(frames[1:])
     np.testing.assert_allclose(g, want.G, rtol=1e-8, atol=0)
     out16 = tmp_path / "r16.csv"
     assert main(["process", str(wide), "--out", str(out16), "--baseline", str(base),
@@ -90,7 +91,7 @@ def test_process_npy_stack_with_baseline_file_and_16_bit_png(tmp_path, frames):
     rows = read_csv(out16)
     assert rows[0]["source"] == "f16.png"
     g16, _, _ = table(rows, 1)
-    ref = optitact.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames[2])
+    ref = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames[2])
     np.testing.assert_allclose(g16[0], 256 * ref.G, rtol=1e-8, atol=0)
 
 
@@ -111,12 +112,12 @@ def test_process_video(tmp_path, frames):
     g, _, contact = table(read_csv(out), 3)
     assert not contact[0].any()
     assert set(np.flatnonzero(contact[2])) == set(SPOTS)  # JPEG-compressed, same spots
-    want = optitact.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames[2]).G
+    want = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, baseline=frames[0]).process(frames[2]).G
     np.testing.assert_allclose(g[2][list(SPOTS)], want[list(SPOTS)], rtol=0.1)
 
 
 def test_process_setup_json(tmp_path, frames):
-    cam = optitact.FisheyeCamera(width=160, height=120, fov_deg=150.0)
+    cam = optitact.optics.camera.FisheyeCamera(width=160, height=120, fov_deg=150.0)
     setup = tmp_path / "setup.json"
     setup.write_text(json.dumps({"sensor": SENSOR.to_dict(), "camera": cam.to_dict()}))
     np.save(tmp_path / "s.npy", frames)
@@ -124,7 +125,7 @@ def test_process_setup_json(tmp_path, frames):
     assert main(["process", str(tmp_path / "s.npy"), "--out", str(out), "--setup",
                  str(setup)]) == 0
     g, _, _ = table(read_csv(out), 3)
-    want = optitact.Pipeline(SENSOR, cam, baseline=frames[0]).process(frames)
+    want = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, cam, baseline=frames[0]).process(frames)
     np.testing.assert_allclose(g, want.G, rtol=1e-8, atol=0)
 
 
@@ -228,15 +229,15 @@ def test_bench_pipeline_bad_size(capsys):
 
 
 def test_process_files_from_python_equals_the_command(tmp_path, frames, capsys):
-    """optitact.batch.process_files: the engine behind optitact process, callable from Python."""
-    from optitact.batch import process_files
+    """optitact.pipeline.batch.process_files: the engine behind optitact process, callable from Python."""
+    from optitact.pipeline.batch import process_files
 
     np.save(tmp_path / "a.npy", frames)
     cv2.imwrite(str(tmp_path / "b.png"), frames[2])
     sources = [tmp_path / "a.npy", tmp_path / "b.png"]
-    pipe = optitact.Pipeline(SENSOR, CAM)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)
     got = process_files(sources, pipeline=pipe, batch=2)
-    want = optitact.Pipeline(SENSOR, CAM, baseline=frames[0]).process(np.concatenate([frames, frames[2:]]))
+    want = Pipeline(SENSOR, CAM, baseline=frames[0]).process(np.concatenate([frames, frames[2:]]))
     assert got.n_frames == 4 and got.readings.G.shape == (4, 41)
     assert got.sources[-1].endswith("b.png") and got.forces is None
     np.testing.assert_allclose(got.readings.G, want.G, rtol=1e-8, atol=0)
@@ -256,10 +257,10 @@ def test_process_files_from_python_equals_the_command(tmp_path, frames, capsys):
 
 
 def test_process_files_errors_leave_no_file(tmp_path, frames):
-    from optitact.batch import process_files
+    from optitact.pipeline.batch import process_files
 
     np.save(tmp_path / "a.npy", frames[:2])
-    pipe = optitact.Pipeline(SENSOR, CAM)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)
     out = tmp_path / "r.csv"
     with pytest.raises(ValueError, match="stream ended after 2 frames, before the 3 baseline frames"):
         process_files([tmp_path / "a.npy"], pipeline=pipe, baseline_frames=3, out=out)
@@ -288,7 +289,9 @@ def test_a_frame_file_of_text_is_bad_input_not_a_bug(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def small_cal(tmp_path_factory):
     """The shipped calibration's curves for this module's 160x120 camera and the default pipeline (quick)."""
-    from optitact.calib import DEFAULT_CALIBRATION, Calibration, fingerprint
+    from optitact.calib.document import fingerprint
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import DEFAULT_CALIBRATION
 
     shipped = json.loads(DEFAULT_CALIBRATION.read_text())
     shipped.update(camera=CAM.to_dict(), pipeline={}, fingerprint=fingerprint(SENSOR, CAM, {}))
@@ -332,7 +335,7 @@ def test_process_with_a_calibration_writes_global_forces_and_a_per_frame_table(t
             np.testing.assert_allclose([float(v) for v in cop], ff.centre_of_pressure, rtol=1e-9, atol=1e-9)
     assert per_frame[0]["centre_of_pressure_x"] == "" and fields[2].n_contact > 0  # baseline frame: no contact
     # from Python, in memory: the same numbers
-    from optitact.batch import process_files
+    from optitact.pipeline.batch import process_files
 
     got = process_files([tmp_path / "s.npy"], calibration=cal)
     np.testing.assert_allclose(got.resultant, [ff.resultant for ff in fields], rtol=1e-9, atol=1e-12)
@@ -365,13 +368,13 @@ def test_input_that_is_all_baseline_is_an_error(tmp_path, frames, small_cal, cap
 
 def test_a_nan_frame_is_named_by_its_file_and_index(tmp_path, frames):
     """Per-frame errors name the file and the frame's index within it, not its place in a batch."""
-    from optitact.batch import process_files
+    from optitact.pipeline.batch import process_files
 
     np.save(tmp_path / "a.npy", frames.astype(np.float32))
     bad = np.repeat(frames[1:2].astype(np.float32), 60, axis=0)
     bad[50, 7, 9] = np.nan
     np.save(tmp_path / "b.npy", bad)
-    pipe = optitact.Pipeline(SENSOR, CAM)
+    pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)
     with pytest.raises(InputError, match=r"^b\.npy, frame 50: the frame must be finite, got nan at pixel "
                                          r"\(row 7, col 9\)$"):
         process_files([tmp_path / "a.npy", tmp_path / "b.npy"], pipeline=pipe, batch=32)
@@ -390,7 +393,7 @@ def test_a_nan_frame_is_named_by_its_file_and_index(tmp_path, frames):
 @pytest.mark.parametrize("case", ["folder", "missing_folder", "plot_folder"])
 def test_out_is_checked_before_any_work(tmp_path, frames, capsys, monkeypatch, case):
     """--out naming a folder, or in a folder that does not exist, fails at once (nothing is read)."""
-    import optitact.frames as frames_module
+    import optitact.io.frames as frames_module
 
     cv2.imwrite(str(tmp_path / "a.png"), frames[0])
     cv2.imwrite(str(tmp_path / "b.png"), frames[2])
@@ -413,11 +416,11 @@ def test_out_is_checked_before_any_work(tmp_path, frames, capsys, monkeypatch, c
             "plot_folder": "--plot " + str(tmp_path / "plots") + " is a folder"}[case]
     assert err.startswith("optitact: error:") and want in err and len(err.splitlines()) == 1
     assert read == [] and not (tmp_path / "nope").exists()
-    from optitact.batch import process_files
+    from optitact.pipeline.batch import process_files
 
     if case == "folder":
         with pytest.raises(InputError, match="out: .* is a folder"):
-            process_files([tmp_path / "a.png", tmp_path / "b.png"], pipeline=optitact.Pipeline(SENSOR, CAM),
+            process_files([tmp_path / "a.png", tmp_path / "b.png"], pipeline=Pipeline(SENSOR, CAM),
                           out=out)
 
 
@@ -426,7 +429,7 @@ def test_the_progress_bar_appears_once_the_work_has_taken_its_delay(capsys):
     counting the frames done since the start."""
     import time
 
-    from optitact.batch import _Progress
+    from optitact.pipeline.batch import _Progress
 
     with _Progress(10, desc="process", delay=60.0) as bar:
         bar.update(10)

@@ -1,20 +1,20 @@
 """The README's code blocks run as written, in order, and say what is true.
 
-Every fenced ``python`` block of README.md runs in one namespace, and the ``bash`` lines
-that are cheap and safe run in a shell, all in document order in one temporary folder: a
-reader pasting them one after another into one Python session and a shell in the same
-folder. Two kinds of edits make it quick, both visible here and nowhere else:
+The machinery here runs any Markdown page of the repository the way a reader would: every
+fenced ``python`` block of the page runs in one namespace, and the ``bash`` lines that are
+cheap and safe run in a shell, all in document order in one temporary folder: a reader
+pasting them one after another into one Python session and a shell in the same folder.
+``tests/docs/test_guides.py`` runs the getting-started, guide and results pages of
+``docs/`` with it, a namespace per page. Two kinds of edits make it quick, both visible
+in each page's :class:`Page` and nowhere else:
 
-- ``QUICK``: the named size constants a block defines on its first lines (``SIZE, SPP =
-  ...``) get small values. The calibration set is path-traced (``RENDER_MODE =
-  "pixels"``): the default two-stage transport would first measure the light-transport
-  table of the small test camera (tens of minutes).
-- ``SKIPPED``: bash lines not run (installs, the whole test suite, long renders), each with
-  its reason. A bash line in neither ``SKIPPED`` nor ``RUN`` fails the test until it is
-  classified.
+- ``quick``: the named size constants a block defines on its first lines (``SIZE, SPP =
+  ...``) get small values.
+- ``skipped``: bash lines not run (installs, the whole test suite, long renders), each with
+  its reason. A bash line in neither ``skipped`` nor ``run`` fails the page's test until it
+  is classified.
 
-Then the values the blocks left behind are checked against known truths. The study block
-reuses the quick tracing result the taxel tests cached earlier in the session.
+Then the values the blocks left behind are checked against known truths.
 """
 
 from __future__ import annotations
@@ -26,51 +26,44 @@ import re
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
 
-#: Constant line of a README block -> the small value the test gives it.
-QUICK = {
-    "SIZE, SPP": '(160, 120), 16',
-    "FRAMES, RENDER_MODE": '24, "pixels"',
-}
+#: The languages a page's fenced blocks may have: python and bash (executed), untagged (a
+#: synopsis) and the MyST directives the docs use.
+LANGUAGES = {"python", "bash", "", "{toctree}"}
 
-#: Bash lines the test runs (after removing a trailing comment).
-RUN = {
-    "optitact process --help",
-    "optitact process frames.npy --baseline noload.npy --out readings.csv",
-    "optitact process frames.npy --baseline noload.npy --calibration dome41.json --out forces.csv",
-    "optitact experiment tracing",
-}
 
-#: Bash lines the test does not run, and why.
-SKIPPED = {
-    "pip install -e '.[render,plot]' && optitact demo": "an install, then a 640x480 render at 64 spp",
-    "pip install -e '.[test]' && pytest": "an install, then the whole test suite",
-    "optitact calibrate generate --frames 200 --pattern blend --seed 0 --out dome41.zarr":
-        "regenerates the shipped calibration's set (minutes)",
-    "optitact calibrate generate --frames 60 --pattern blend --seed 900 --render-mode pixels --spp 256 "
-    "--out val.zarr": "the shipped calibration's validation set (path-traced, minutes)",
-    "optitact calibrate fit dome41.zarr --joint --validation val.zarr --out calib/data/dome41.json "
-    "--plot fit.png": "overwrites the shipped calibration, from the sets above",
-    "optitact experiment finger --full --plot finger.png": "the full finger study (minutes)",
-    **{line: "the own-sensor workflow: tests/test_workflows.py runs these lines as typed, each a new "
-             "process, on a rendered stand-in's files (a recording for --camera 0)" for line in (
-        "optitact register noload.png reg_*.png --camera-intrinsics cam.yml --fit-offsets --out setup.json",
-        "optitact process presses/ --setup setup.json --calibration default --out forces.csv",
-        "optitact calibrate fit --frames presses/ --forces gauge.csv --setup setup.json --start default "
-        "--out mysensor.json",
-        "optitact calibrate test --frames held/ --forces held.csv --calibration default --setup setup.json",
-        "optitact calibrate test --frames held/ --forces held.csv --calibration mysensor.json "
-        "--plot errors.png",
-        "optitact process --camera 0 --calibration mysensor.json --out live.csv")},
-}
+@dataclass(frozen=True)
+class Page:
+    """A Markdown page whose code the tests run, and how."""
 
-FENCE = re.compile(r"^(?P<indent> *)```(?P<lang>\w*)\s*$")
+    path: Path
+    #: Constant line of a block -> the small value the test gives it.
+    quick: dict = field(default_factory=dict)
+    #: Bash lines the test runs (after removing a trailing comment).
+    run: frozenset = frozenset()
+    #: Bash lines the test does not run, and why.
+    skipped: dict = field(default_factory=dict)
+    #: Modules the page's code needs (the test skips without them).
+    needs: tuple = ()
+    #: The fewest python blocks the page has.
+    min_python: int = 0
+
+    @property
+    def name(self) -> str:
+        return self.path.relative_to(ROOT).as_posix()
+
+    def blocks(self) -> list[tuple[str, int, str]]:
+        return blocks(self.path.read_text(encoding="utf-8"))
+
+
+FENCE = re.compile(r"^(?P<indent> *)```(?P<lang>\{[\w-]+\}|\w*)\s*$")
 
 
 def blocks(text: str) -> list[tuple[str, int, str]]:
@@ -91,9 +84,9 @@ def blocks(text: str) -> list[tuple[str, int, str]]:
     return out
 
 
-def shrink(code: str, used: set) -> str:
-    """Give the ``QUICK`` constants defined in ``code`` their small values."""
-    for names, value in QUICK.items():
+def shrink(code: str, quick: dict, used: set) -> str:
+    """Give the ``quick`` constants defined in ``code`` their small values."""
+    for names, value in quick.items():
         pattern = re.compile(rf"^{re.escape(names)} = .*$", re.M)
         if pattern.search(code):
             code = pattern.sub(f"{names} = {value}", code, count=1)
@@ -106,20 +99,18 @@ def bash_lines(code: str) -> list[str]:
     return [ln.split("  #")[0].strip() for ln in code.splitlines() if ln.strip() and not ln.startswith("#")]
 
 
-ALL = blocks(README.read_text(encoding="utf-8"))
+def check_languages(page: Page) -> None:
+    """A block is python or bash (executed), untagged (a synopsis) or a MyST directive."""
+    found = page.blocks()
+    assert {lang for lang, _, _ in found} <= LANGUAGES, page.name
+    assert sum(lang == "python" for lang, _, _ in found) >= page.min_python, page.name
 
 
-def test_every_block_has_a_language_the_test_knows():
-    """A block is python or bash (executed) or untagged (a synopsis); nothing else slips by."""
-    assert {lang for lang, _, _ in ALL} <= {"python", "bash", ""}
-    assert sum(lang == "python" for lang, _, _ in ALL) >= 6
-
-
-def test_every_bash_line_is_classified():
-    lines = [ln for lang, _, code in ALL if lang == "bash" for ln in bash_lines(code)]
-    unknown = [ln for ln in lines if ln not in RUN and ln not in SKIPPED]
-    assert not unknown, f"classify these README bash lines in RUN or SKIPPED: {unknown}"
-    assert set(lines) == RUN | set(SKIPPED), "RUN/SKIPPED name lines the README no longer has"
+def check_classified(page: Page) -> None:
+    lines = [ln for lang, _, code in page.blocks() if lang == "bash" for ln in bash_lines(code)]
+    unknown = [ln for ln in lines if ln not in page.run and ln not in page.skipped]
+    assert not unknown, f"classify these {page.name} bash lines in run or skipped: {unknown}"
+    assert set(lines) == page.run | set(page.skipped), f"run/skipped name lines {page.name} no longer has"
 
 
 def _shell(line: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -129,82 +120,78 @@ def _shell(line: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(["bash", "-c", line], cwd=cwd, env=env, capture_output=True, text=True)
 
 
-def _csv(path: Path) -> list[dict]:
+def csv_rows(path: Path) -> list[dict]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
 
 
-@pytest.mark.render
-def test_readme_runs_top_to_bottom(tmp_path, monkeypatch):
+def run_page(page: Page, tmp_path: Path, monkeypatch) -> tuple[dict, dict]:
+    """Run a page's blocks in order in ``tmp_path``: its namespace, and the bash lines run with results."""
     # find_spec, not importorskip: importing drjit here would pick its libLLVM before optitact.render does.
-    if importlib.util.find_spec("mitsuba") is None or importlib.util.find_spec("matplotlib") is None:
-        pytest.skip("the README's examples need the render and plot extras")
+    missing = [name for name in page.needs if importlib.util.find_spec(name) is None]
+    if missing:
+        pytest.skip(f"{page.name}'s examples need {', '.join(missing)}")
     monkeypatch.chdir(tmp_path)
-    ns: dict = {"__name__": "__readme__"}
+    ns: dict = {"__name__": "__page__"}
     used: set = set()
-    ran = []
-    for lang, line, code in ALL:
+    ran = {}
+    for lang, line, code in page.blocks():
         if lang == "python":
-            exec(compile(shrink(code, used), f"README.md:{line}", "exec"), ns)  # noqa: S102
+            exec(compile(shrink(code, page.quick, used), f"{page.name}:{line}", "exec"), ns)  # noqa: S102
         elif lang == "bash":
             for cmd in bash_lines(code):
-                if cmd in RUN:
+                if cmd in page.run:
                     done = _shell(cmd, tmp_path)
-                    assert done.returncode == 0, f"README.md:{line}: {cmd}\n{done.stderr[-2000:]}"
-                    ran.append((cmd, done))
-    assert used == set(QUICK), "a QUICK constant is no longer defined by a README block"
-    assert {cmd for cmd, _ in ran} == RUN
+                    assert done.returncode == 0, f"{page.name}:{line}: {cmd}\n{done.stderr[-2000:]}"
+                    ran[cmd] = done
+    assert used == set(page.quick), f"a quick constant is no longer defined by a {page.name} block"
+    assert set(ran) == page.run
+    return ns, ran
 
-    # In Python: a frame of the shrunk camera; project/unproject round-trips exactly.
-    frame, forces = ns["frame"], ns["forces"]
-    assert frame.dtype == np.uint8 and frame.shape == (120, 160)
-    assert ns["noload"].shape == (2, 120, 160)
-    np.testing.assert_allclose(ns["points"], ns["contacts"].centers[0], rtol=0, atol=1e-9)
 
-    # Frames to readings: the loaded element reads contact; a stack reads as frame by frame.
-    r, rs, pipe, stack = ns["r"], ns["rs"], ns["pipe"], ns["stack"]
-    assert r.contact[0] and r.G[0] > 0
-    assert rs.G.shape == (10, 41)
-    np.testing.assert_allclose(rs.G[3], pipe.process(stack[3]).G, rtol=1e-12, atol=0)
-    rows = ns["rows"]
-    assert {len(v) for v in rows.values()} == {410} and all(np.ndim(v) == 1 for v in rows.values())
+#: The commands of README.md and docs/getting_started.md, which CI runs as written (.ci/run).
+INSTALL = {
+    "pip install -e '.[render,plot]' && optitact demo": "an install, then a 640x480 render at 64 spp",
+    "pip install -e '.[test]' && pytest": "an install, then the whole test suite",
+}
 
-    # Calibration and forces: the apex load read back from the rendered frame. A 16-frame,
-    # 4-spp set of a 160x120 camera is a coarse calibration (Monte Carlo noise in every frame):
-    # Fz within 0.25 N of 0.8 N and Fx within 0.1 N of 0.1 N; the apex carries the largest Fz.
-    est = ns["field"].local
-    assert abs(est[0, 2] - forces[0, 2]) < 0.25, est[0]
+#: The first example (README.md, docs/getting_started.md) renders the shipped calibration's 640x480 camera:
+#: 4 samples per pixel keep it to about a second a render.
+FIRST_EXAMPLE_QUICK = {"SPP": "4"}
+
+README = Page(
+    ROOT / "README.md",
+    quick=FIRST_EXAMPLE_QUICK,
+    skipped={**INSTALL,
+             "pip install -e '.[docs]' && sphinx-build docs docs/_build/html":
+                 "an install, then the documentation build (tests/docs/test_sphinx.py builds it)"},
+    needs=("mitsuba",),
+    min_python=1,
+)
+
+
+def check_first_example(ns: dict) -> None:
+    """The apex load read back from the rendered frame with the shipped calibration.
+
+    At 4 spp with one no-load frame, Fz within 0.15 N of 0.8 N and Fx within 0.1 N of 0.1 N;
+    the apex carries the largest Fz.
+    """
+    est, forces = ns["field"].local, ns["forces"]
+    assert ns["frame"].dtype == np.uint8 and ns["frame"].shape == (480, 640)
+    assert abs(est[0, 2] - forces[0, 2]) < 0.15, est[0]
     assert abs(est[0, 0] - forces[0, 0]) < 0.1, est[0]
     assert np.argmax(est[:, 2]) == 0
-    assert Path("forces.png").stat().st_size > 0
-    assert ns["mine"].model == ns["cal"].model
 
-    # The command line on the saved frames: the same readings and forces as in Python.
-    readings = _csv(tmp_path / "readings.csv")
-    assert len(readings) == 410
-    g = np.array([float(row["G"]) for row in readings]).reshape(10, 41)
-    np.testing.assert_allclose(g, rs.G, rtol=1e-9, atol=1e-9)
-    cal = ns["cal"]
-    want, _ = cal.forces(cal.pipeline(baseline=ns["noload"]).process(stack))
-    got = np.array([[float(row[k]) for k in ("fx", "fy", "fz")] for row in _csv(tmp_path / "forces.csv")])
-    np.testing.assert_allclose(got.reshape(10, 41, 3), want, rtol=1e-9, atol=1e-9)
 
-    # The finger: the target is reached, the lean held, mu and the slip found.
-    finger, ik, held = ns["finger"], ns["ik"], ns["held"]
-    assert ik.error < 1e-3
-    np.testing.assert_allclose(finger.forward(ik.theta), ns["target_mm"], rtol=0, atol=1e-3)
-    assert abs(np.degrees(finger.lean(held.theta, z=held.z)) - 9.0) < 1e-3
-    assert abs(ns["fe"].mean - 0.4) < 0.01
-    onsets = ns["res"].onsets
-    assert len(onsets) == 1 and 3.0 <= onsets[0] <= 3.5, onsets
-    assert list(ns["slipping"]) == list(ns["res"].slipping)
+def test_every_block_has_a_language_the_test_knows():
+    check_languages(README)
 
-    # Taxels: the indenter's centre comes back from the pad's moments within 0.3 mm.
-    m = ns["m"]
-    assert ns["taxel_frames"].shape == (6, 16, 16)
-    assert abs(m["x_mm"][-1] - 3.0) < 0.3 and abs(m["y_mm"][-1] + 2.0) < 0.3
 
-    # Studies: the names the README lists, and a result with the paper's figures beside ours.
-    assert ns["studies"].names() == ["finger", "fingertip", "noise", "palpation", "tracing", "wire"]
-    assert "published" in ns["result"]
-    assert Path("tracing.png").stat().st_size > 0
+def test_every_bash_line_is_classified():
+    check_classified(README)
+
+
+@pytest.mark.render
+def test_readme_runs_top_to_bottom(tmp_path, monkeypatch):
+    ns, _ = run_page(README, tmp_path, monkeypatch)
+    check_first_example(ns)

@@ -17,12 +17,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from optitact.calib.fit import Calibration
+from optitact.calib.held_out import press_report
+from optitact.calib.press_fit import GROUPS, MIN_PRESSES_TO_TELL, fit_presses
+from optitact.calib.shipped import default_calibration
 from test_presses import N_EL, SENSOR, gauge, protocol_forces, readings_of  # tests/ is on sys.path
 
-from optitact.calib import Calibration, default_calibration, fit_presses, press_report
-from optitact.calib.press_fit import GROUPS, MIN_PRESSES_TO_TELL
 from optitact.errors import OptitactWarning
-from optitact.readings import Readings
+from optitact.pipeline.readings import Readings
 
 AXES = ("fx", "fy", "fz")
 
@@ -151,10 +153,11 @@ def test_cli_refinement_reports_what_it_kept_and_does_not_lose_to_the_start(user
     refinement (the same figures as the file's provenance), warns that 2 presses cannot tell a centroid
     shift, and `calibrate test` on a third frame finds it better than the shipped calibration in Fz and
     no worse in shear."""
-    from optitact.calib import Design, design_forces
-    from optitact.ccd import CCD
-    from optitact.io import write_png
+    from optitact.calib.sets import Design, design_forces
     from optitact.render import render
+
+    from optitact.io.files import write_png
+    from optitact.optics.ccd import CCD
 
     cam = default_calibration().camera
     ccd = CCD()

@@ -19,11 +19,14 @@ import numpy as np
 import pytest
 
 import optitact
-from optitact import DomeSensor, OpenCVFisheyeCamera, contact_patches, pixel_from_dome
-from optitact.camera import rotation_from_rvec
-from optitact.camera_models import pose_from_position
-from optitact.errors import ShapeError
-from optitact.register import Registration, RegistrationError, RegistrationWarning, detect_spots, register
+from optitact.errors import RegistrationError, ShapeError
+from optitact.optics.camera import camera_from_dict, rotation_from_rvec
+from optitact.optics.camera_models import OpenCVFisheyeCamera, pose_from_position
+from optitact.optics.contact import contact_patches
+from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.sensor import DomeSensor
+from optitact.registration.pose import Registration, RegistrationWarning, register
+from optitact.registration.spots import detect_spots
 
 SENSOR = DomeSensor.default()
 W, H = 320, 240
@@ -205,7 +208,7 @@ def test_register_fits_the_intrinsics(standins):
 def test_default_equidistant_camera_is_fitted_as_opencv_fisheye():
     true = replace(NOMINAL, **pose_from_position((0.3, -0.2, -5.0), (0.02, -0.01, 0.0)))
     noload, pressed = frames(true, 7)
-    reg = optitact.register(noload, pressed)  # the default camera of the frames' size
+    reg = optitact.registration.pose.register(noload, pressed)  # the default camera of the frames' size
     assert isinstance(reg.camera, OpenCVFisheyeCamera)
     dpos, dang = pose_error(reg.camera, true)
     assert dpos <= 0.05 and dang <= 0.1 and reg.rms_px <= 0.1
@@ -283,7 +286,7 @@ def test_cli_writes_a_setup_that_process_reads(standins, tmp_path, capsys):
     doc = json.loads(setup.read_text())
     assert set(doc) == {"sensor", "camera", "registration"}
     assert doc["registration"]["rms_px"] <= 0.1 and len(doc["registration"]["frames"]) == 3
-    cam = optitact.camera_from_dict(doc["camera"])
+    cam = optitact.optics.camera.camera_from_dict(doc["camera"])
     dpos, dang = pose_error(cam, true)
     assert dpos <= 0.05 and dang <= 0.1
 
@@ -331,17 +334,18 @@ def test_a_set_for_a_registered_sensor_uses_its_camera(tmp_path, monkeypatch):
     (the emission table belongs to the patches, not the camera)."""
     import json
 
-    import optitact.calib as calib
-    from optitact.camera_models import PinholeCamera
+    import optitact.calib.sets as calib
+
+    from optitact.optics.camera_models import PinholeCamera
 
     cam = PinholeCamera(width=64, height=48, fx=30.0, fy=30.0, cx=31.5, cy=23.5, tvec=(0.1, 0.0, 5.0))
     setup = tmp_path / "setup.json"
-    setup.write_text(json.dumps({"sensor": optitact.DomeSensor.default().to_dict(), "camera": cam.to_dict()}))
+    setup.write_text(json.dumps({"sensor": DomeSensor.default().to_dict(), "camera": cam.to_dict()}))
     seen = {}
 
     def fake_generate(path, **kw):
         seen.update(kw)
-        raise optitact.InputError("stop here")   # the command's wiring is what is tested
+        raise optitact.errors.InputError("stop here")   # the command's wiring is what is tested
 
     monkeypatch.setattr(calib, "generate", fake_generate)
     from optitact.cli import main
@@ -349,12 +353,12 @@ def test_a_set_for_a_registered_sensor_uses_its_camera(tmp_path, monkeypatch):
     assert main(["calibrate", "generate", "--frames", "2", "--out", str(tmp_path / "s.zarr"),
                  "--setup", str(setup)]) == 2
     assert seen["camera"] == cam and seen["render_mode"] == "two_stage"
-    assert seen["sensor"] == optitact.DomeSensor.default()
+    assert seen["sensor"] == optitact.optics.sensor.DomeSensor.default()
 
 
 # ----------------------------------------------------------------------------- as built: offsets and gains
 def test_cone_points_with_offsets_are_the_as_built_sensors_cones():
-    from optitact.register import _cone_points
+    from optitact.registration.pose import _cone_points
 
     rng = np.random.default_rng(2)
     first, more = rng.normal(0, 0.15, (41, 2)), rng.normal(0, 0.15, (41, 2))
@@ -392,7 +396,7 @@ def test_fitted_offsets_make_a_sensor_that_reprojects_its_cones_where_they_are(s
         return pixel_from_dome(cones, sensor=s, camera=cam).mean(axis=1)
 
     # measured centroid (the true ring, to the spots' noise) = the setup's prediction + the fit's residual
-    err = np.linalg.norm(rings(sensor, optitact.camera_from_dict(setup["camera"])) + reg.residuals_px
+    err = np.linalg.norm(rings(sensor, camera_from_dict(setup["camera"])) + reg.residuals_px
                          - rings(truth, true), axis=1)
     assert err.max() <= 0.2 and np.sqrt(np.mean(err ** 2)) <= 0.08, err
     seen = np.unique(reg.element)
@@ -405,11 +409,12 @@ def test_fitted_offsets_make_a_sensor_that_reprojects_its_cones_where_they_are(s
 def gain_frames():
     """Two-stage frames (160x120 default camera, the shipped emission table: it serves every camera) of a
     sensor with known gains and of the designed one, the 22 elements of PRESSES pressed at 0.6 N each."""
-    from optitact.ccd import CCD
     from optitact.render import render
-    from optitact.render.twostage import shipped_table
+    from optitact.render.emission import shipped_table
 
-    cam = optitact.FisheyeCamera(width=160, height=120)
+    from optitact.optics.ccd import CCD
+
+    cam = optitact.optics.camera.FisheyeCamera(width=160, height=120)
     table = shipped_table(SENSOR)
     gains = np.random.default_rng(5).uniform(0.85, 1.15, 41)
     ccd = CCD()
@@ -459,5 +464,5 @@ def test_register_recovers_element_gains(gain_frames):
     # each pressed twice: a standard error from the pooled spread of the repeats (CCD noise only)
     assert all(0 < reg.std_errors[f"gain_{e}"] < 0.02 for e in seen)
     assert 0 < ref.std_errors["gain_2"] < 0.02  # pressed once: the frames' noise through the region sums
-    with pytest.raises(optitact.InputError, match="press_force .* needs fit_gains=True"):
+    with pytest.raises(optitact.errors.InputError, match="press_force .* needs fit_gains=True"):
         register(*gain_frames["built"], press_force=0.6)

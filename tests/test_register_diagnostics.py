@@ -16,10 +16,12 @@ import numpy as np
 import pytest
 from test_register import NOMINAL, PRESSES, SENSOR, H, W, _spot, frames, pose_error, standin
 
-from optitact import DomeSensor, contact_patches, pixel_from_dome
-from optitact.camera_models import PinholeCamera
 from optitact.errors import InputError, KindError
-from optitact.register import RegistrationWarning, register
+from optitact.optics.camera_models import PinholeCamera
+from optitact.optics.contact import contact_patches
+from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.sensor import DomeSensor
+from optitact.registration.pose import RegistrationWarning, register
 
 PM = r"(-?[\d.]+) \+- ([\d.]+)"
 
@@ -196,12 +198,13 @@ def test_cli_low_resolution_gains_come_with_their_uncertainty_and_a_caution(user
     """64x48 two-stage frames of the designed sensor (every gain 1), each element pressed once at 0.2 N:
     the gains spread 0.85-1.21, each +- about 7 % from the frames' noise through the few pixels an
     element's light covers, and the command says the spread is no more than that."""
-    import optitact
-    from optitact.ccd import CCD
     from optitact.render import render
-    from optitact.render.twostage import shipped_table
+    from optitact.render.emission import shipped_table
 
-    cam = optitact.FisheyeCamera(width=64, height=48)
+    import optitact
+    from optitact.optics.ccd import CCD
+
+    cam = optitact.optics.camera.FisheyeCamera(width=64, height=48)
     table, ccd = shipped_table(SENSOR), CCD()
     presses = (*PRESSES, (8, 10, 12, 15, 16, 18, 20), (22, 24, 26, 28, 31, 32, 34), (35, 36, 38, 39, 23))
 

@@ -11,25 +11,18 @@ import sys
 
 import numpy as np
 import pytest
+from optitact.render import pass_seeds, render, render_contacts
+from optitact.render.backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
+from optitact.render.scene import RenderSettings
 
 import optitact
-from optitact.contact import Contacts
-from optitact.render import (
-    PREFERRED_VARIANTS,
-    RenderSettings,
-    active_variant,
-    find_libllvm,
-    pass_seeds,
-    render,
-    render_contacts,
-    select_variant,
-)
+from optitact.optics.contact import Contacts
 
 pytestmark = pytest.mark.render
 
-SENSOR = optitact.DomeSensor.default()
-CAMERA = optitact.FisheyeCamera()
-TINY = optitact.FisheyeCamera(width=64, height=48)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+CAMERA = optitact.optics.camera.FisheyeCamera()
+TINY = optitact.optics.camera.FisheyeCamera(width=64, height=48)
 
 
 def single_patch(point, radius) -> Contacts:
@@ -59,7 +52,7 @@ def centroid(img, crop):
 def patch_spot(camera, point):
     """The intensity centroid (row, col) of a 0.25 mm patch at a dome point (256 spp, over the empty
     frame), and ``pixel_from_dome`` of the point."""
-    px = optitact.pixel_from_dome(point, sensor=SENSOR, camera=camera)
+    px = optitact.optics.dome_optics.pixel_from_dome(point, sensor=SENSOR, camera=camera)
     crop = window(px, 10)
     spot = render_contacts(SENSOR, single_patch(point, 0.25), camera=camera, spp=256, seed=7,
                            crop=crop).astype(np.float64)
@@ -188,7 +181,7 @@ def test_errors_do_not_import_mitsuba_and_import_is_lazy():
         "import sys, numpy as np, optitact\n"
         "from optitact.render import render\n"
         "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
-        "s = optitact.DomeSensor.default()\n"
+        "s = optitact.optics.sensor.DomeSensor.default()\n"
         "for kw in ({'spp': 0}, {'spp': 1, 'seed': -2}):\n"
         "    try:\n"
         "        render(s, np.zeros((41, 3)), **kw)\n"
@@ -212,7 +205,7 @@ def test_render_settings_validation(kwargs, match):
 
 
 # ---------------------------------------------------------------------------- only the spot pixels
-PIX_CAM = optitact.FisheyeCamera(width=160, height=120)
+PIX_CAM = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 PIX_LOAD = np.zeros((41, 3))
 PIX_LOAD[[0, 5, 20], 2] = (0.8, 0.5, 0.6)
 PIX_LOAD[0, 0] = 0.1
@@ -224,8 +217,9 @@ def noload_bg():
 
 
 def test_spot_pixels_are_the_loaded_regions():
-    from optitact.pipeline import Pipeline
     from optitact.render import spot_pixels
+
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
     weights = Pipeline(SENSOR, PIX_CAM).region_weights
@@ -240,8 +234,9 @@ def test_spot_pixels_are_the_loaded_regions():
 def test_pixel_rendering_matches_full_frames_within_noise(noload_bg):
     """Readings of frames rendered only at the spot pixels (over a no-load background) agree with
     full-frame renders in the mean over seeds, within 4 combined standard errors."""
-    from optitact.pipeline import Pipeline
     from optitact.render import spot_pixels
+
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
     pipe = Pipeline(SENSOR, PIX_CAM, baseline=noload_bg, noise_sigma=0.0)
@@ -286,7 +281,7 @@ def test_full_output_returns_what_the_render_measured():
     """render() returns the radiance; full_output=True a RenderResult with the samples used (no dict filled)."""
     from optitact.render import RenderResult
 
-    cam = optitact.FisheyeCamera(width=32, height=24)
+    cam = optitact.optics.camera.FisheyeCamera(width=32, height=24)
     bg = np.full(cam.shape, 0.25, np.float32)
     none = np.zeros(cam.shape, bool)
     out = render(SENSOR, np.zeros((41, 3)), camera=cam, pixels=none, background=bg, full_output=True)

@@ -1,7 +1,7 @@
 """Rendering with any camera model: the ray-table sensor plugin (tiny renders and crop windows only).
 
 The independent truths: the closed-form projection through the dome
-(:func:`optitact.pixel_from_dome`, itself checked against OpenCV's
+(:func:`optitact.optics.dome_optics.pixel_from_dome`, itself checked against OpenCV's
 ``projectPoints``), the exact rays of :meth:`Camera.ray_from_pixel`, and the
 closed-form equidistant plugin for a model that equals it.
 """
@@ -10,17 +10,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-import optitact
-from optitact.camera_models import OpenCVFisheyeCamera, PinholeCamera, pose_from_position
 from optitact.render import render, spot_pixels
 from optitact.render.rays import corner_rays, interpolate_rays
-
 from test_render import PIX_LOAD, dome_point, patch_spot, single_patch
+
+import optitact
+from optitact.optics.camera_models import OpenCVFisheyeCamera, PinholeCamera, pose_from_position
 
 pytestmark = pytest.mark.render
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 #: A board camera: pinhole with radial-tangential distortion, 0.22 mm off axis and 1 deg tilted.
 PINHOLE = PinholeCamera(640, 480, fx=300.0, fy=302.0, cx=322.0, cy=236.0,
                         dist=(-0.12, 0.02, 0.001, -0.0008, 0.0),
@@ -40,7 +39,7 @@ def quarter(cam):
     return type(cam)(**kw)
 
 
-@pytest.mark.parametrize("cam", [optitact.FisheyeCamera(width=160, height=120), quarter(PINHOLE),
+@pytest.mark.parametrize("cam", [optitact.optics.camera.FisheyeCamera(width=160, height=120), quarter(PINHOLE),
                                  quarter(TILTED)], ids=["default", "pinhole", "tilted"])
 def test_corner_ray_interpolation_is_far_below_the_agreement_tolerance(cam):
     """Bilinear rays between the float32 corner rays re-project within 0.01 px of the sample (0.25 px allowed).
@@ -80,8 +79,8 @@ def test_corner_rays_of_listed_pixels_are_the_windows_corners():
 
 def plugin_rays(cam, *, crop=None, pixels=None, n=20000):
     """Rays the loaded Mitsuba sensor samples at random positions, with those positions (row, col)."""
-    from optitact.render import RenderSettings, select_variant
-    from optitact.render.scene import PACKED_WIDTH, build_scene
+    from optitact.render.backend import select_variant
+    from optitact.render.scene import PACKED_WIDTH, RenderSettings, build_scene
 
     mi, _ = select_variant()
     scene = build_scene(mi, SENSOR, cam, single_patch([0.0, 0.0, 20.0], 0.0),
@@ -129,7 +128,7 @@ def test_render_agrees_with_closed_form_projection(cam, polar, azimuth):
 
 def test_table_plugin_reproduces_the_closed_form_fisheye():
     """OpenCV's fisheye, undistorted and on the axis, is FisheyeCamera: the same samples give the same frame."""
-    cam = optitact.FisheyeCamera(width=64, height=48)
+    cam = optitact.optics.camera.FisheyeCamera(width=64, height=48)
     same = OpenCVFisheyeCamera(64, 48, fx=cam.focal_px, fy=cam.focal_px, cx=31.5, cy=23.5)
     forces = np.zeros((SENSOR.n_elements, 3))
     forces[[0, 3, 12], 2] = [0.6, 0.4, 0.3]

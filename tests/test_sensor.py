@@ -1,4 +1,4 @@
-"""Tests for the dome geometry in optitact.sensor."""
+"""Tests for the dome geometry in optitact.optics.sensor."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
 R = 20.0
 

@@ -2,8 +2,16 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import (Indenter, Layout, Scenario, TactileSource, make_source, moments,
-                              source_config, source_names)
+from optitact.taxels.sources import (
+    Indenter,
+    Layout,
+    Scenario,
+    TactileSource,
+    make_source,
+    moments,
+    source_config,
+    source_names,
+)
 
 
 def test_registry_lists_dome_and_refuses_unknown_names():

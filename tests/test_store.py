@@ -12,15 +12,17 @@ import sys
 
 import numpy as np
 import pytest
+from optitact.calib import sets as sets_mod
+from optitact.calib import store as _store
+from optitact.calib.fit import fit
+from optitact.calib.sets import CalibrationSet, generate
 
 import optitact
-from optitact.calib import CalibrationSet, fit, generate
-from optitact.calib import sets as sets_mod
 from optitact.cli import main
 from optitact.errors import InputError
 
-SENSOR = optitact.DomeSensor.default()
-TINY = optitact.FisheyeCamera(width=80, height=60)
+SENSOR = optitact.optics.sensor.DomeSensor.default()
+TINY = optitact.optics.camera.FisheyeCamera(width=80, height=60)
 N = SENSOR.n_elements
 GEN = dict(camera=TINY, spp=2, seed=5, progress=False, render_mode="full", baseline_frames=1)
 
@@ -167,7 +169,7 @@ def test_stray_partial_chunks_in_a_finished_store_are_removed(whole, tmp_path):
 
 def killed_writer(target, tmp_path) -> None:
     """A subprocess that dies (os._exit, no clean-up) half-way through atomic_write_text(target)."""
-    code = ("import os, sys\nfrom optitact.io import atomic_write\n"
+    code = ("import os, sys\nfrom optitact.io.files import atomic_write\n"
             "def half(tmp):\n    tmp.write_text('{\"schema\": ')\n    os._exit(9)\n"
             "atomic_write(sys.argv[1], half)\n")
     proc = subprocess.run([sys.executable, "-c", code, str(target)], cwd=tmp_path)
@@ -177,7 +179,7 @@ def killed_writer(target, tmp_path) -> None:
 def test_temporary_files_of_a_killed_write_are_cleaned(tmp_path):
     """A killed `calibrate fit` leaves its temporary CAL.json beside the target: the next write of
     the same target removes it; other files are left alone."""
-    from optitact.io import atomic_write_text
+    from optitact.io.files import atomic_write_text
 
     target = tmp_path / "CAL.json"
     keep = tmp_path / "other.json"
@@ -201,13 +203,13 @@ def test_a_second_writer_is_refused_and_told_who_holds_the_store(cheap, tmp_path
                               stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "locked"
-        with pytest.raises(sets_mod.StoreLockedError, match=rf"pid {holder.pid} on .*--holder-flag.* since "):
+        with pytest.raises(_store.StoreLockedError, match=rf"pid {holder.pid} on .*--holder-flag.* since "):
             generate(out, frames=2, **GEN)
         assert main(["calibrate", "generate", "--frames", "2", "--out", str(out), "--width", "80",
                      "--height", "60", "--render-mode", "full"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"pid {holder.pid}" in err[0] and "another process" in err[0]
-        assert sorted(p.name for p in out.iterdir()) == [sets_mod.LOCK_NAME]  # nothing written
+        assert sorted(p.name for p in out.iterdir()) == [_store.LOCK_NAME]  # nothing written
     finally:
         holder.communicate("")
     assert generate(out, frames=2, **GEN).complete
@@ -270,11 +272,11 @@ def no_path_tracing(monkeypatch):
 
 def test_the_default_sensor_and_camera_use_the_shipped_table(no_path_tracing, cheap, tmp_path, capsys):
     em = no_path_tracing
-    camera = optitact.FisheyeCamera()
+    camera = optitact.optics.camera.FisheyeCamera()
     table = em.emission_table(SENSOR, camera, progress=True)
     meta = table.meta
     assert meta["sensor"] == SENSOR.to_dict() and meta["camera"] == camera.to_dict()
-    assert meta["settings"] == optitact.render.RenderSettings().to_dict() and meta["spp"] == 4096
+    assert meta["settings"] == optitact.render.scene.RenderSettings().to_dict() and meta["spp"] == 4096
     assert table.radiance.shape == (len(em.TABLE_THETA_DEG), len(em.TABLE_RADII_MM))
     assert np.all(table.radiance > 0) and np.all(np.isfinite(table.coupling))
     assert np.median(table.stderr / table.radiance) < 0.02  # measured at 4096 spp: 0.8 %
@@ -283,12 +285,12 @@ def test_the_default_sensor_and_camera_use_the_shipped_table(no_path_tracing, ch
     # `calibrate generate` with every default (two-stage frames, 640x480) starts on its frames at once
     out = tmp_path / "s.zarr"
     cs = generate(out, frames=1, spp=1, seed=1, progress=False, baseline_frames=1)
-    from optitact.io import json_fingerprint
+    from optitact.io.files import json_fingerprint
 
     assert cs.complete and cs.attrs["two_stage_table"] == json_fingerprint(table.to_dict()["radiance"], 16)
     # anything else is measured (here: refused by the stand-in), announced first on stderr
     for kw in ({"camera": TINY}, {"camera": camera, "spp": 256},
-               {"camera": camera, "settings": optitact.render.RenderSettings(rim_radiance=2.0)}):
+               {"camera": camera, "settings": optitact.render.scene.RenderSettings(rim_radiance=2.0)}):
         with pytest.raises(Crash):
             em.emission_table(SENSOR, progress=True, **kw)
         err = capsys.readouterr().err

@@ -14,20 +14,23 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from optitact.calib.document import CalibrationMismatchError, fingerprint
+from optitact.calib.press_fit import fit_presses
+from optitact.calib.shipped import default_calibration
 
 import optitact
-from optitact.calib import CalibrationMismatchError, default_calibration, fingerprint, fit_presses
-from optitact.camera_models import OpenCVFisheyeCamera
 from optitact.cli import main
-from optitact.readings import Readings
-from optitact.gains import reference_curve, reference_g
+from optitact.optics.camera_models import OpenCVFisheyeCamera
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.readings import Readings
+from optitact.registration.gains import reference_curve, reference_g
 
 W, H = 64, 48
 F0 = (min(W, H) / 2) / np.deg2rad(70)
 CAM = OpenCVFisheyeCamera(W, H, fx=F0, fy=F0, cx=(W - 1) / 2 + 0.7, cy=(H - 1) / 2 - 0.4, dist=(0.01, 0, 0, 0),
                           tvec=(0.1, -0.05, 5.0))
 GAINS = np.random.default_rng(4).uniform(0.8, 1.25, 41)
-BUILT = optitact.DomeSensor(element_gain=GAINS,
+BUILT = optitact.optics.sensor.DomeSensor(element_gain=GAINS,
                             element_offsets=np.random.default_rng(5).normal(0.0, 0.1, (41, 2)))
 
 
@@ -68,7 +71,7 @@ def test_transferred_fingerprint_and_provenance(shipped, moved, tmp_path):
     assert moved.fingerprint != shipped.fingerprint
     assert moved.provenance["transferred_from"] == shipped.fingerprint
     assert moved.pipeline_options == shipped.pipeline_options  # mm on the dome: they carry over as they are
-    back = optitact.calib.Calibration.load(moved.save(tmp_path / "moved.json"))
+    back = optitact.calib.fit.Calibration.load(moved.save(tmp_path / "moved.json"))
     assert back.fingerprint == moved.fingerprint
     np.testing.assert_array_equal(back.g_scale, moved.g_scale)
     # back to the designed sensor and the shipped camera: the shipped curves again
@@ -79,9 +82,9 @@ def test_transferred_fingerprint_and_provenance(shipped, moved, tmp_path):
 
 def test_transfer_refuses_another_layout_or_options(shipped):
     with pytest.raises(CalibrationMismatchError, match=r"ring_counts \(1, 8, 16, 16\), the new one \(1, 8, 16\)"):  # noqa: E501
-        shipped.transferred(optitact.DomeSensor(ring_counts=(1, 8, 16), ring_polar_deg=(0, 25, 50)), CAM)
+        shipped.transferred(DomeSensor(ring_counts=(1, 8, 16), ring_polar_deg=(0, 25, 50)), CAM)
     with pytest.raises(CalibrationMismatchError, match="n_cones 8, the new one 6"):
-        shipped.transferred(optitact.DomeSensor(n_cones=6), CAM)
+        shipped.transferred(optitact.optics.sensor.DomeSensor(n_cones=6), CAM)
     bad = replace(shipped, pipeline_options={"radius": 50.0, "grid_mm": 0.037})
     with pytest.raises(CalibrationMismatchError, match="pipeline options .* do not carry over .*too fine"):
         bad.transferred(BUILT, CAM)

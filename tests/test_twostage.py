@@ -10,25 +10,21 @@ import math
 
 import numpy as np
 import pytest
+from optitact.render import render, spot_pixels
+from optitact.render.background import noload_radiance
+from optitact.render.coverage import patch_coverage
+from optitact.render.emission import EmissionTable, band_weights, emission_table
+from optitact.render.scene import RenderSettings, patch_mesh, patch_polygons
+from optitact.render.twostage import render_two_stage
 
 import optitact
-from optitact.contact import Contacts, contact_patches
-from optitact.render import RenderSettings, render, spot_pixels
-from optitact.render.scene import patch_mesh, patch_polygons
-from optitact.render.twostage import (
-    EmissionTable,
-    band_weights,
-    emission_table,
-    noload_radiance,
-    patch_coverage,
-    render_two_stage,
-)
+from optitact.optics.contact import Contacts, contact_patches
 
 pytestmark = pytest.mark.render
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 SETTINGS = RenderSettings()
-CAM = optitact.FisheyeCamera(width=160, height=120)
+CAM = optitact.optics.camera.FisheyeCamera(width=160, height=120)
 LOAD = np.zeros((41, 3))
 LOAD[[0, 5, 20], 2] = (0.9, 0.7, 0.8)
 LOAD[0, 0] = 0.15
@@ -72,7 +68,7 @@ def _footprint_mm2(cam, rows, cols):
 @pytest.mark.parametrize("polar", [0.0, 25.0, 50.0, 70.0])
 def test_coverage_integrates_to_the_patch_area(polar):
     """Sum over pixels of coverage x pixel footprint on the dome = pi a^2 (analytic)."""
-    _check_coverage_area(optitact.FisheyeCamera(), polar)
+    _check_coverage_area(optitact.optics.camera.FisheyeCamera(), polar)
 
 
 def _check_coverage_area(cam, polar):
@@ -98,7 +94,7 @@ def test_coverage_converges_with_sub_sampling():
     forces[:, 2] = 0.5
     forces[:, 0] = 0.1
     c = contact_patches(SENSOR, forces)
-    cam = optitact.FisheyeCamera()
+    cam = optitact.optics.camera.FisheyeCamera()
     fine = patch_coverage(SENSOR, cam, c, SETTINGS, n_sub=24)
     per_fine = np.bincount(fine["patch"], weights=fine["transmitted"])
     coarse = patch_coverage(SENSOR, cam, c, SETTINGS, n_sub=8)
@@ -139,7 +135,7 @@ def test_two_stage_matches_brute_force_on_a_tiny_scene(tiny_table):
     G within 8 % and u within 0.05 mm of a 2048-spp path-traced frame. The tiny scene has a
     coarse table (4 deg steps across the sharp fall of the guided light near 42 deg, 512 spp,
     0.5 mm pixels); at 640x480 with the default table `optitact bench render` measures < 1 % in G."""
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     bg = noload_radiance(SENSOR, CAM)
     contacts = contact_patches(SENSOR, LOAD)
@@ -179,7 +175,7 @@ def test_two_stage_through_render_is_deterministic_and_validated(tiny_table):
 def test_calibration_set_from_two_stage_frames(tiny_table, tmp_path):
     """generate(render_mode="two_stage") renders no Monte Carlo noise into the loaded frames: the
     same set twice is identical, and its readings follow the path-traced pixels mode's."""
-    from optitact.calib import generate
+    from optitact.calib.sets import generate
 
     kw = dict(frames=3, camera=CAM, spp=64, seed=4, progress=False)
     a = generate(tmp_path / "a.zarr", render_mode="two_stage", table=tiny_table, **kw)
@@ -203,7 +199,7 @@ def test_adaptive_sampling_reaches_its_target():
     bg = noload_radiance(SENSOR, CAM)
     mask = spot_pixels(SENSOR, CAM, LOAD)
     ref = render(SENSOR, LOAD, camera=CAM, spp=4096, seed=1, pixels=mask, background=bg)
-    from optitact.regions import region_weights, split_regions
+    from optitact.pipeline.regions import region_weights, split_regions
 
     weights = region_weights(split_regions(SENSOR, CAM), CAM.shape)
 
@@ -232,9 +228,9 @@ def test_bench_render_uses_the_table_it_is_given(tiny_table, monkeypatch):
     def no_table(*args, **kwargs):
         raise AssertionError("bench_render built a table although one was given")
 
-    import optitact.render.twostage as ts
+    import optitact.render.emission as em
 
-    monkeypatch.setattr(ts, "emission_table", no_table)
+    monkeypatch.setattr(em, "emission_table", no_table)
     out = br.bench_render((1,), modes=("two_stage",), n_subs=(2,), reference_spp=8, width=CAM.width,
                           height=CAM.height, cases=("1-heavy",), table=tiny_table, progress=False)
     assert [r["mode"] for r in out["rows"]] == ["two_stage"]
@@ -247,7 +243,7 @@ def test_element_gain_scales_each_elements_spots(tiny_table):
     (deterministic) and within Monte Carlo noise in path tracing (it scales the rubber's reflectance)."""
     gains = np.ones(41)
     gains[[5, 20]] = (1.2, 0.7)
-    built = optitact.DomeSensor(element_gain=gains)
+    built = optitact.optics.sensor.DomeSensor(element_gain=gains)
     bg = np.zeros(CAM.shape, np.float32)
     contacts = contact_patches(SENSOR, LOAD)
     plain = render_two_stage(SENSOR, contacts, camera=CAM, table=tiny_table, background=bg, settings=SETTINGS)
@@ -263,7 +259,7 @@ def test_element_gain_scales_each_elements_spots(tiny_table):
             path_lit = render(built, LOAD, camera=CAM, spp=512, seed=1, pixels=mask, background=bg)
             assert path_lit[disc].sum() / path_plain[disc].sum() == pytest.approx(gains[e], rel=0.02)
     with pytest.raises(ValueError, match="exceed 1"):
-        render(optitact.DomeSensor(element_gain=np.full(41, 1.5)), LOAD, camera=CAM, spp=1)
+        render(optitact.optics.sensor.DomeSensor(element_gain=np.full(41, 1.5)), LOAD, camera=CAM, spp=1)
 
 
 # ---------------------------------------------------------------- any camera model
@@ -301,7 +297,7 @@ def test_fisheye_coverage_is_unchanged_by_the_general_rays(monkeypatch):
     forces[[0, 3, 11, 26, 40], 2] = (0.4, 0.9, 0.6, 1.2, 0.8)
     forces[[3, 26], 1] = 0.2
     c = contact_patches(SENSOR, forces)
-    for cam in (optitact.FisheyeCamera(), CAM):
+    for cam in (optitact.optics.camera.FisheyeCamera(), CAM):
         new = patch_coverage(SENSOR, cam, c, SETTINGS)
         with monkeypatch.context() as m:
             m.setattr(cv, "_sample_rays", _old_fisheye_sample_rays)
@@ -334,7 +330,7 @@ def test_coverage_integrates_to_the_patch_area_for_other_models(model, polar):
 def test_table_key_ignores_the_rendering_camera_and_the_as_built_fields(tiny_table):
     from optitact.render.emission import _shipped_key, _table_key, shipped_table
 
-    built = optitact.DomeSensor(element_gain=np.linspace(0.9, 1.1, 41),
+    built = optitact.optics.sensor.DomeSensor(element_gain=np.linspace(0.9, 1.1, 41),
                                 element_offsets=np.full((41, 2), 0.1))
     grid = ((0.0, 10.0), (5.0,))
     assert _shipped_key(built, CAM, SETTINGS, grid, (0.3,)) == _shipped_key(SENSOR, CAM, SETTINGS, grid, (0.3,))
@@ -342,7 +338,7 @@ def test_table_key_ignores_the_rendering_camera_and_the_as_built_fields(tiny_tab
             == _table_key(SENSOR, CAM, SETTINGS, grid, (0.3,), 64, 0, "v"))
     # the measuring camera is part of the key; the default sensor's shipped table serves the as-built one
     assert _shipped_key(SENSOR, CAM, SETTINGS, grid, (0.3,)) != _shipped_key(
-        SENSOR, optitact.FisheyeCamera(), SETTINGS, grid, (0.3,))
+        SENSOR, optitact.optics.camera.FisheyeCamera(), SETTINGS, grid, (0.3,))
     assert shipped_table(built) is not None
     # the tiny table, asked for again for the as-built sensor, comes from the cache (no measurement)
     again = emission_table(built, CAM, **TINY_TABLE)
@@ -360,7 +356,7 @@ def test_two_stage_matches_brute_force_through_other_models(tiny_table, nominal_
     Kannala-Brandt fisheye (160 x 120): same spots, and G within 8 % and u within 0.05 mm of a
     4096-spp path-traced frame (the tolerance of the fisheye test above; at 2048 spp the path-traced
     G of one element moves by 3.5 % between seeds, so the reference takes twice the samples)."""
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     cam = _models()[model]
     bg = noload_radiance(SENSOR, cam, nominal=CAM)  # resampled from CAM's no-load frame
@@ -393,7 +389,7 @@ def test_resampled_background_matches_a_path_traced_one(nominal_bg):
     the radiance-weighted mean distance from the image centre within 0.5 px."""
     from scipy.ndimage import gaussian_filter
 
-    from optitact.camera_models import OpenCVFisheyeCamera, pose_from_position
+    from optitact.optics.camera_models import OpenCVFisheyeCamera, pose_from_position
 
     cam = OpenCVFisheyeCamera(80, 60, fx=185.0 / 8, fy=186.0 / 8, cx=323.5 / 8 - 0.5, cy=237.5 / 8 - 0.5,
                               dist=(0.03, -0.01, 0.002, -0.0005),

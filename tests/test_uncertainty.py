@@ -1,4 +1,4 @@
-"""Standard errors of readings and forces (optitact.uncertainty, Calibration.stderr), checked against
+"""Standard errors of readings and forces (optitact.pipeline.uncertainty, Calibration.stderr), checked against
 Monte Carlo spreads through the CCD model, independent finite differences and coverage on ideal data."""
 
 from __future__ import annotations
@@ -8,18 +8,18 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from optitact.calib import default_calibration
 from optitact.calib.crosstalk import CrossTalk
-from optitact.camera import FisheyeCamera
-from optitact.ccd import CCD
-from optitact.errors import InputError, ShapeError
+from optitact.calib.shipped import default_calibration
 from optitact.forces import ForceField
-from optitact.pipeline import Pipeline
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
+
+from optitact.errors import InputError, ShapeError
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.ccd import CCD
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.readings import Readings
+from optitact.pipeline.uncertainty import PixelNoise, ReadingErrors, coverage, reading_errors
 from optitact.studies.noise_sweep import _SpotModel, nominal_energy
-from optitact.uncertainty import PixelNoise, ReadingErrors, coverage, reading_errors
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +76,7 @@ def test_predicted_spread_of_G_and_u_matches_the_monte_carlo_spread_of_analytic_
     empirical = np.array([r.G[:, 0].std(ddof=1), *r.u[:, 0].std(axis=0, ddof=1)])
     # 400 frames: the sample spread is good to 3.5 % (1 sigma); the threshold's crossings add a little to G.
     # (At a quarter of the nominal signal the linearisation is off: G's spread 10 % above it, u's 20-30 %
-    # below, as faint pixels cross the threshold; see optitact.uncertainty.)
+    # below, as faint pixels cross the threshold; see optitact.pipeline.uncertainty.)
     np.testing.assert_allclose(predicted, empirical, rtol=0.12, atol=0)
 
 
@@ -210,7 +210,7 @@ def test_coverage_checks_its_input():
 
 def test_coverage_spread_is_that_of_the_frames():
     """Elements that share their frame's fate spread as T frames do; independent ones as T x E samples."""
-    from optitact.uncertainty import coverage_spread
+    from optitact.pipeline.uncertainty import coverage_spread
 
     rng = np.random.default_rng(4)
     t_n, e_n = 400, 41
@@ -236,7 +236,7 @@ def test_coverage_spread_is_that_of_the_frames():
 
 def test_error_ratio_is_one_for_honest_errors_of_any_tails_where_coverage_is_not_ninety_percent():
     """Laplace errors with the right standard errors: ratio 1, but 0.92 of them inside 1.645 of them."""
-    from optitact.uncertainty import error_ratio
+    from optitact.pipeline.uncertainty import error_ratio
 
     rng = np.random.default_rng(6)
     n = 200_000

@@ -28,12 +28,13 @@ BENCH = textwrap.dedent('''
     import json, sys
     import cv2
     import numpy as np
-    from optitact import DomeSensor, PinholeCamera
-    from optitact.calib import Design, design_forces
-    from optitact.camera_models import pose_from_position
-    from optitact.ccd import CCD
+    from optitact.optics.sensor import DomeSensor
+    from optitact.optics.camera_models import PinholeCamera
+    from optitact.calib.sets import Design, design_forces
+    from optitact.optics.camera_models import pose_from_position
+    from optitact.optics.ccd import CCD
     from optitact.render import render
-    from optitact.render.twostage import shipped_table
+    from optitact.render.emission import shipped_table
     from optitact.studies.bench_realism import REGISTRATION_FORCE_N, REGISTRATION_PRESSES, draw_standin
 
     KIND, W, H = sys.argv[1], 320, 240
@@ -118,7 +119,7 @@ def _bench(user, kind: str, *what: str) -> dict:
 
 def _pose_error(setup: dict, truth: dict) -> tuple[float, float]:
     """Camera position (mm) and orientation (deg) error of a setup file's camera against the truth."""
-    from optitact.camera import camera_from_dict  # after the commands ran: only to read their output
+    from optitact.optics.camera import camera_from_dict  # after the commands ran: only to read their output
 
     cam = camera_from_dict(setup["camera"])
     dp = float(np.linalg.norm(cam.position - np.array(truth["position"])))

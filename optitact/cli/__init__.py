@@ -26,7 +26,7 @@ import warnings
 from optitact import __version__
 from optitact.errors import OptitactError, OptitactWarning
 
-__all__ = ["main", "overlay", "parser", "USER_ERRORS"]
+__all__ = ["main", "parser", "USER_ERRORS"]
 
 #: Exceptions that mean bad input rather than a bug: a one-line message and exit code 2.
 #: OptitactError covers InputError, ShapeError, MissingExtraError and RenderError (Mitsuba set-up).
@@ -58,7 +58,7 @@ def parser(command: str | None = None) -> argparse.ArgumentParser:
 
 def __getattr__(name: str):
     if name == "overlay":  # re-exported from the demo command's module
-        from .demo import overlay
+        from optitact.cli.demo import overlay
 
         return overlay
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

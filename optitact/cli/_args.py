@@ -185,7 +185,7 @@ def check_frame_size(args, cal, source: str, shape: tuple[int, ...]) -> None:
     """
     if cal is None or tuple(shape[:2]) == cal.camera.shape:
         return
-    from optitact.calib import CalibrationMismatchError
+    from optitact.calib.document import CalibrationMismatchError
 
     got, made = f"{source}: the frames are {shape[1]}x{shape[0]}", f"{cal.camera.width}x{cal.camera.height}"
     if args.setup is not None:

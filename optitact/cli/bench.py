@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ._args import image_size_parent, int_at_least, pattern_choices, plot_parent, positive_int, seed_parent, \
-    size, variant_parent
+from optitact.cli._args import (image_size_parent, int_at_least, pattern_choices, plot_parent, positive_int,
+                                seed_parent, size, variant_parent)
 
 #: argparse %-formats help strings (``%%`` is a literal ``%``) but prints descriptions as they are:
 #: a description must write ``%``, a help string ``%%``.

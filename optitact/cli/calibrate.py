@@ -9,8 +9,9 @@ import numpy as np
 
 from optitact.errors import InputError
 
-from ._args import calibration_on_setup, check_frame_size, image_size_parent, int_at_least, out_file, \
-    pattern_choices, plot_parent, positive_int, render_mode_choices, seed_parent, spp_parent, variant_parent
+from optitact.cli._args import (calibration_on_setup, check_frame_size, image_size_parent, int_at_least,
+                                out_file, pattern_choices, plot_parent, positive_int, render_mode_choices,
+                                seed_parent, spp_parent, variant_parent)
 
 __all__ = ["add_parsers"]
 
@@ -186,17 +187,17 @@ def _presses_arguments(p, *, required: bool = False) -> None:
 def _baseline(args):
     if args.baseline is None:
         return None, args.baseline_frames
-    from optitact.frames import expand_sources, iter_frames
+    from optitact.io.frames import expand_sources, iter_frames
 
     return np.stack([f for _, f in iter_frames(expand_sources([args.baseline]))]), 0
 
 
 def run_generate(args) -> int:
     """``optitact calibrate generate``: prints the store's path on stdout."""
-    from optitact.calib import Design, generate
-    from optitact.camera import FisheyeCamera
+    from optitact.calib.sets import Design, generate
+    from optitact.optics.camera import FisheyeCamera
 
-    from .process import read_setup
+    from optitact.cli.process import read_setup
 
     design = Design(fz_max=args.fz_max, shear_max=args.shear_max, mu_max=args.mu_max, pattern=args.pattern)
     if args.setup is not None:
@@ -216,7 +217,7 @@ def run_generate(args) -> int:
 
 def run_fit(args) -> int:
     """``optitact calibrate fit``: prints the calibration's path on stdout."""
-    from optitact.calib import fit
+    from optitact.calib.fit import fit
 
     if args.frames is not None or args.forces is not None:
         return _run_fit_presses(args)
@@ -238,7 +239,7 @@ def run_fit(args) -> int:
           f"Fx {np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} "
           f"N; wrote {args.out}", file=sys.stderr)
     if args.plot is not None:
-        from optitact.calib import CalibrationSet
+        from optitact.calib.sets import CalibrationSet
         from optitact.calib.plots import plot_fit
 
         cs = CalibrationSet(args.set)
@@ -250,7 +251,7 @@ def run_fit(args) -> int:
 
 def _validated(cal, set_path, val_path):
     """``cal`` with its error measured on the finished set ``val_path`` (never the fitted set itself)."""
-    from optitact.calib import CalibrationSet
+    from optitact.calib.sets import CalibrationSet
 
     vs = CalibrationSet(val_path)
     if Path(val_path).resolve() == Path(set_path).resolve() or vs.attrs["seed"] == cal.provenance.get("seed"):
@@ -333,11 +334,11 @@ def _print_refinement(prov: dict) -> None:
 def _presses_pipeline(setup, start, frames):
     """The pipeline that reads the presses: the setup's sensor and camera, the start's options."""
     from optitact.calib.press_fit import default_pipeline
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     if setup is None:
         return start.pipeline() if start is not None else default_pipeline(frames)
-    from .process import read_setup
+    from optitact.cli.process import read_setup
 
     sensor, camera = read_setup(setup)
     if start is None:
@@ -359,7 +360,7 @@ def run_test(args) -> int:
 
     cal = starting_calibration(args.calibration)
     if args.setup is not None:
-        from optitact.setup import read_setup
+        from optitact.registration.setup import read_setup
 
         setup = read_setup(args.setup)
         cal = calibration_on_setup(cal, (setup.sensor, setup.camera),
@@ -414,7 +415,7 @@ def run_test(args) -> int:
 
 def _check_sizes(args, cal, baseline) -> None:
     """The presses' first frame (and a --baseline) must be of the calibration's camera; else what to do."""
-    from optitact.frames import expand_sources, iter_frames
+    from optitact.io.frames import expand_sources, iter_frames
 
     frames = iter_frames(expand_sources(args.frames))
     first = next(frames, None)
@@ -430,7 +431,7 @@ def _stack(files: list[Path], option: str) -> np.ndarray:
 
     The frames must be of one size and dtype, and grey levels (integer or float, not bool).
     """
-    from optitact.frames import iter_frames
+    from optitact.io.frames import iter_frames
 
     frames = [(name, f) for name, f in iter_frames(files)]
     if not frames:
@@ -451,7 +452,7 @@ def _stack(files: list[Path], option: str) -> np.ndarray:
 
 def _noise_files(args) -> tuple[list[Path], list[Path]]:
     """The --noload and --pressed files, expanded; InputError if a file is in both."""
-    from optitact.frames import expand_sources
+    from optitact.io.frames import expand_sources
 
     noload, pressed = expand_sources(args.noload), expand_sources(args.pressed)
     seen = {p.resolve(): p for p in noload}
@@ -467,7 +468,7 @@ def run_noise(args) -> int:
     """``optitact calibrate noise``: the pixel noise model as JSON on stdout, written to --out."""
     import json
 
-    from optitact.uncertainty import PixelNoise, saturated_pixels
+    from optitact.pipeline.uncertainty import PixelNoise, saturated_pixels
 
     if args.exponent == "fit":
         exponent = "fit"

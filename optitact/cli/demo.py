@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 
 from optitact import __version__
-from optitact.camera import FisheyeCamera
-from optitact.ccd import CCD
-from optitact.contact import Contacts, contact_patches
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.ccd import CCD
+from optitact.optics.contact import Contacts, contact_patches
+from optitact.optics.sensor import DomeSensor
 
-from ._args import out_file, out_folder, render_parents
+from optitact.cli._args import out_file, out_folder, render_parents
 
 __all__ = ["add_parsers", "display_levels", "display_view", "overlay"]
 
@@ -78,7 +78,8 @@ def add_parsers(sub) -> None:
 
 
 def _render_frame(sensor: DomeSensor, forces: np.ndarray, args, camera=None) -> dict:
-    from optitact.render import active_variant, render
+    from optitact.render.backend import active_variant
+    from optitact.render import render
 
     camera = FisheyeCamera(width=args.width, height=args.height) if camera is None else camera
     ccd = CCD(bits=args.bits)
@@ -219,7 +220,8 @@ def _noload_baseline(sensor: DomeSensor, camera: FisheyeCamera, ccd: CCD, args, 
     """
     from tqdm import tqdm
 
-    from optitact._cache import cache_dir, cached_render, render_cache_path
+    from optitact.io.cache import cache_dir
+    from optitact.render.cache import cached_render, render_cache_path
 
     zero = np.zeros((sensor.n_elements, 3))
     todo = sum(not render_cache_path(sensor, zero, camera=camera, spp=args.spp, seed=args.seed + 1 + k,
@@ -253,7 +255,7 @@ def _shipped_calibration(sensor: DomeSensor, args, camera=None):
     ``plot`` extra is reported now, not after minutes of renders.
     """
     from optitact._optional import require
-    from optitact.calib import default_calibration
+    from optitact.calib.shipped import default_calibration
 
     cal = default_calibration()
     if camera is not None:
@@ -273,7 +275,7 @@ def _setup(args, argv_size: bool):
     """``(sensor, camera)`` of ``--setup`` (camera None without one); the size options must agree."""
     if args.setup is None:
         return DomeSensor.default(), None
-    from .process import read_setup
+    from optitact.cli.process import read_setup
 
     sensor, camera = read_setup(args.setup)
     if argv_size and (args.width, args.height) != (camera.width, camera.height):
@@ -295,8 +297,8 @@ def _estimate(sensor: DomeSensor, r: dict, args, cal) -> dict | None:
 
 
 def run_demo(args) -> int:
-    from optitact.io import write_json, write_npy, write_png
-    from optitact.loads import indenter_load
+    from optitact.io.files import write_json, write_npy, write_png
+    from optitact.optics.loads import indenter_load
 
     sensor, camera = _setup(args, (args.width, args.height) != (640, 480))
     forces = indenter_load(sensor)
@@ -354,7 +356,8 @@ def run_demo(args) -> int:
 
 
 def run_render(args) -> int:
-    from optitact.io import read_forces_csv, write_npy, write_png
+    from optitact.io.tables import read_forces_csv
+    from optitact.io.files import write_npy, write_png
 
     sensor, camera = _setup(args, (args.width, args.height) != (640, 480))
     forces = read_forces_csv(args.forces, sensor.n_elements)

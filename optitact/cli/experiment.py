@@ -12,7 +12,7 @@ import math
 import sys
 from pathlib import Path
 
-from ._args import out_file, plot_parent, seed_parent
+from optitact.cli._args import out_file, plot_parent, seed_parent
 
 __all__ = ["add_parsers", "format_value", "summary_table"]
 
@@ -103,7 +103,7 @@ def run_experiment(args) -> int:
         print(f"optitact: wrote {path}", file=sys.stderr)
         result = {**result, "plot": str(Path(path))}
     if args.out is not None:
-        from optitact.io import atomic_write_text
+        from optitact.io.files import atomic_write_text
 
         atomic_write_text(args.out, json.dumps(result) + "\n")
         print(f"optitact: wrote the whole result to {args.out}", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""``optitact process``: camera frames to a readings (or forces) CSV (:func:`optitact.batch.process_files`)."""
+"""``optitact process``: camera frames to a readings (or forces) CSV (:mod:`optitact.pipeline.batch`)."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact.camera import Camera, FisheyeCamera
+from optitact.optics.camera import Camera, FisheyeCamera
 from optitact.errors import InputError
-from optitact.live import POLICIES
-from optitact.sensor import DomeSensor
+from optitact.live.stream import POLICIES
+from optitact.optics.sensor import DomeSensor
 
-from ._args import calibration_on_setup, check_frame_size, int_at_least, positive_int
+from optitact.cli._args import calibration_on_setup, check_frame_size, int_at_least, positive_int
 
 __all__ = ["add_parsers"]
 
@@ -88,7 +88,7 @@ def add_parsers(sub) -> None:
                            "--dn-per-electron is given")
     proc.add_argument("--dn-per-electron", type=float, default=None, metavar="G",
                       help="with --stderr: the camera's conversion gain (grey levels per electron; "
-                           "optitact.uncertainty.PixelNoise.estimate measures it from a no-load and a "
+                           "optitact.pipeline.uncertainty.PixelNoise.estimate measures it from a no-load and a "
                            "pressed stack; 0.0128 for the synthetic 8-bit CCD)")
     proc.add_argument("--noise", type=Path, default=None, metavar="NOISE.json",
                       help="with --stderr, instead of --dn-per-electron: the camera's measured noise model "
@@ -126,15 +126,15 @@ def add_parsers(sub) -> None:
 
 
 def read_setup(path: Path) -> tuple[DomeSensor, Camera]:
-    """The sensor and camera of a ``--setup`` JSON file (:func:`optitact.read_setup`)."""
-    from optitact.setup import read_setup as read
+    """The sensor and camera of a ``--setup`` JSON file (:func:`optitact.registration.setup.read_setup`)."""
+    from optitact.registration.setup import read_setup as read
 
     setup = read(path)
     return setup.sensor, setup.camera
 
 
 def _load_baseline(path: Path) -> np.ndarray:
-    from optitact.frames import expand_sources, iter_frames
+    from optitact.io.frames import expand_sources, iter_frames
 
     return np.stack([f for _, f in iter_frames(expand_sources([path]))])
 
@@ -152,8 +152,8 @@ def _check_out(path: Path | None, option: str) -> None:
 
 def _check_not_inputs(args, files) -> None:
     """Refuse an output (``--out``, its per-frame and partial tables, ``--plot``) that is an input file."""
-    from optitact.frames import expand_sources
-    from optitact.tables import refuse_overwriting_inputs, table_files
+    from optitact.io.frames import expand_sources
+    from optitact.io.tables import refuse_overwriting_inputs, table_files
 
     outputs = {f"--out's {k}" if k != "table" else "--out": v
                for k, v in table_files(args.out, forces=args.calibration is not None).items()}
@@ -190,7 +190,8 @@ def _calibration(args, given: dict, setup):
         if args.plot is not None:
             raise InputError("--plot needs --calibration (it plots estimated forces)")
         return None
-    from optitact.calib import Calibration, default_calibration
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import default_calibration
 
     shipped = str(args.calibration) == "default"
     cal = default_calibration() if shipped else Calibration.load(args.calibration)
@@ -202,7 +203,7 @@ def _calibration(args, given: dict, setup):
 
 def _pipeline(args, given: dict, cal, setup, shape):
     """The pipeline of the options, for frames of ``shape`` (H, W) (used without --setup and calibration)."""
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     if cal is not None:
         return cal.pipeline(method=args.method, bits=args.bits)
@@ -224,11 +225,11 @@ def _check_options(args) -> None:
     if args.stderr and args.calibration is None:
         raise InputError("--stderr gives the forces' standard errors: it needs --calibration")
     if args.noise is not None and args.stderr:
-        from optitact.uncertainty import PixelNoise
+        from optitact.pipeline.uncertainty import PixelNoise
 
         PixelNoise.load(args.noise)  # a bad noise file is named before any frame is read
     if args.dn_per_electron is not None:
-        from optitact.uncertainty import PixelNoise
+        from optitact.pipeline.uncertainty import PixelNoise
 
         try:
             PixelNoise(args.dn_per_electron)
@@ -244,7 +245,7 @@ def _check_filter(given: dict, shape: tuple[int, int]) -> None:
     """``--filter-size``: the filter's window must fit in frames of ``shape`` (H, W)."""
     import math
 
-    from optitact.steps import filter_radius
+    from optitact.pipeline.imageops import filter_radius
 
     method, size = given.get("filter"), given.get("filter_size")
     if method not in ("gaussian", "median") or size is None:
@@ -286,7 +287,7 @@ def _noise(args, cal):
         print("optitact: --stderr without --dn-per-electron or --noise: the calibration's model error only "
               "(give the camera's noise to add each frame's)", file=sys.stderr)
         return "model"
-    from optitact.uncertainty import PixelNoise
+    from optitact.pipeline.uncertainty import PixelNoise
 
     if args.noise is None:
         return PixelNoise(args.dn_per_electron)
@@ -299,7 +300,7 @@ def run_process(args) -> int:
     """``optitact process``: build the pipeline (and calibration) from the options, then process_files."""
     import cv2
 
-    from optitact.frames import expand_sources, iter_frames, read_ahead, read_ahead_depth
+    from optitact.io.frames import expand_sources, iter_frames, read_ahead, read_ahead_depth
 
     # OpenCV's worker threads would busy-wait between frames for a colour conversion that takes
     # a tenth of a millisecond; video decoding keeps its own (FFmpeg's) threads
@@ -342,8 +343,8 @@ def _prepend(first, rest):
 
 def _process_files(args, files, first, frames) -> int:
     """``optitact process`` on files: the pipeline (and calibration), then process_files on ``frames``."""
-    from optitact.batch import process_files
-    from optitact.tables import per_frame_path
+    from optitact.pipeline.batch import process_files
+    from optitact.io.tables import per_frame_path
 
     setup = None if args.setup is None else read_setup(args.setup)
     given = _given(args)
@@ -420,7 +421,7 @@ class _View:
         """Show the frame; False when the user asks to stop (q or Esc)."""
         import cv2
 
-        from .demo import overlay
+        from optitact.cli.demo import overlay
 
         if not self.on:
             return True
@@ -482,8 +483,8 @@ def _run_live(args) -> int:
     """``optitact process --camera``: stream, write the rows as they come, print a summary."""
     import time
 
-    from optitact.tables import partial_path, per_frame_path
-    from optitact.live import LiveWriter, _policy, source_label, stream
+    from optitact.io.tables import partial_path, per_frame_path
+    from optitact.live.stream import LiveWriter, _policy, source_label, stream
 
     if args.frames:
         raise InputError("give FRAMES or --camera, not both")

@@ -11,7 +11,7 @@ import numpy as np
 
 from optitact.errors import InputError, OptitactWarning
 
-from ._args import out_file
+from optitact.cli._args import out_file
 
 __all__ = ["add_parsers"]
 
@@ -67,7 +67,7 @@ def add_parsers(sub) -> None:
 
 
 def _read(paths: list[Path]) -> list[np.ndarray]:
-    from optitact.frames import expand_sources, iter_frames
+    from optitact.io.frames import expand_sources, iter_frames
 
     return [f for _, f in iter_frames(expand_sources(paths))]
 
@@ -139,7 +139,7 @@ def _rejection(x: dict) -> str:
 
 def run_register(args) -> int:
     """``optitact register``: read the frames and the intrinsics, register, write the setup file."""
-    from optitact.register import register
+    from optitact.registration.pose import register
 
     noload = _read([args.noload])
     if not noload:
@@ -151,7 +151,7 @@ def run_register(args) -> int:
     pressed = _read(args.pressed)
     h, w = base.shape[-2:]
     if args.camera_intrinsics is not None:
-        from optitact.opencv_files import read_opencv_calibration
+        from optitact.optics.opencv_files import read_opencv_calibration
 
         camera = read_opencv_calibration(args.camera_intrinsics, model=args.model)
         if camera.shape != (h, w):
@@ -162,7 +162,7 @@ def run_register(args) -> int:
                          "distortion cannot be guessed)")
     else:
         camera = None
-    from optitact.register import GainsError
+    from optitact.errors import GainsError
 
     if args.press_force is not None and args.fit_gains is False:
         raise InputError("--press-force is the force of the presses the gains come from; drop --no-fit-gains")

@@ -24,27 +24,12 @@ size="quick")``, and :mod:`optitact.studies.finger_scanning`,
 Examples
 --------
 >>> import numpy as np
->>> import optitact.finger as fg
->>> f = fg.Finger()
+>>> from optitact.finger.kinematics import Finger
+>>> f = Finger()
 >>> np.round(f.forward([0.0, 0.0, 0.0]), 6)          # stretched out along x
 array([200.,   0.,   0.])
 """
 
-from __future__ import annotations
+import lazy_loader as _lazy
 
-from .chain import ChainEstimate, ChainSimulator
-from .kinematics import POSE_DOWN, POSE_SCAN, POSE_TRACE, Finger, RMRCResult, SingularityError, UnreachableError
-from .scene import (
-    Box,
-    Cylinder,
-    Table,
-    feeler_forces,
-    feeler_tips,
-    local_from_world,
-    sliding_friction,
-    world_from_local,
-)
-
-__all__ = ["UnreachableError", "SingularityError", "Finger", "RMRCResult", "POSE_DOWN", "POSE_SCAN",
-           "POSE_TRACE", "ChainSimulator", "ChainEstimate", "Table", "Cylinder", "Box", "feeler_tips",
-           "feeler_forces", "world_from_local", "local_from_world", "sliding_friction"]
+__getattr__, __dir__, __all__ = _lazy.attach(__name__, submodules=["chain", "kinematics", "scene"])

@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import integer, real_array, seed_value
-from ..camera import FisheyeCamera
-from ..ccd import CCD
-from ..errors import InputError, ShapeError
-from ..sensor import DomeSensor
+from optitact._validate import integer, real_array, seed_value
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.ccd import CCD
+from optitact.errors import InputError, ShapeError
+from optitact.optics.sensor import DomeSensor
 
 __all__ = ["ChainSimulator", "ChainEstimate"]
 
@@ -41,8 +41,8 @@ class ChainEstimate:
         The forces the frames were rendered from.
     tipped : (T, N) ndarray of bool
         The contact model tipped the feeler (shear beyond what the cones
-        balance; see :func:`optitact.contact.cone_loads`).
-    readings : optitact.Readings
+        balance; see :func:`optitact.optics.contact.cone_loads`).
+    readings : optitact.pipeline.readings.Readings
         Stack readings, e.g. for another calibration.
     seconds : float
         Wall time of the chain.
@@ -65,8 +65,8 @@ class ChainSimulator:
 
     Parameters
     ----------
-    calibration : optitact.calib.Calibration, optional
-        Default the shipped one (:func:`optitact.calib.default_calibration`);
+    calibration : optitact.calib.fit.Calibration, optional
+        Default the shipped one (:func:`optitact.calib.shipped.default_calibration`);
         it fixes the sensor, camera and pipeline options.
     sensor, camera : optional
         Checked against the calibration's (a mismatch is a
@@ -80,7 +80,7 @@ class ChainSimulator:
     baseline_frames : int
         No-load frames of the baseline (default 4), rendered once at
         ``baseline_spp`` (default 64) and cached on disk
-        (:func:`optitact._cache.cached_render`; with seed 0 the same frames
+        (:func:`optitact.render.cache.cached_render`; with seed 0 the same frames
         as ``optitact demo``).
     variant : str, optional
         Mitsuba variant.
@@ -105,11 +105,12 @@ class ChainSimulator:
                  camera: FisheyeCamera | None = None, ccd: CCD | None = None, spp: int = 32, seed: int = 0,
                  baseline_frames: int = 4, baseline_spp: int = 64, variant: str | None = None,
                  render_options: dict | None = None) -> None:
-        from optitact.calib import Calibration, default_calibration
+        from optitact.calib.fit import Calibration
+        from optitact.calib.shipped import default_calibration
 
         cal = default_calibration() if calibration is None else calibration
         if not isinstance(cal, Calibration):
-            raise TypeError(f"calibration must be an optitact.calib.Calibration, got {type(cal).__name__}")
+            raise TypeError(f"calibration must be an optitact.calib.fit.Calibration, got {type(cal).__name__}")
         cal.check(sensor, camera)
         self.calibration = cal
         self.sensor, self.camera = cal.sensor, cal.camera
@@ -147,7 +148,7 @@ class ChainSimulator:
         """Render (or load from the cache) the no-load baseline and build the pipeline; done on first use."""
         if self._pipe is not None:
             return
-        from .._cache import cached_render
+        from optitact.render.cache import cached_render
 
         zero = np.zeros((self.sensor.n_elements, 3))
         rads, frames = [], []
@@ -195,8 +196,8 @@ class ChainSimulator:
         ChainEstimate
             With a leading frame axis even for a single frame.
         """
-        from optitact.contact import check_forces, cone_loads
-        from optitact.readings import Readings
+        from optitact.optics.contact import check_forces, cone_loads
+        from optitact.pipeline.readings import Readings
 
         arr = real_array(forces, "forces")
         if arr.ndim == 2:

@@ -12,7 +12,7 @@ holding the sensor's lean (:meth:`Finger.rmrc_lean`), and RMRC along a path
 Convention
 ----------
 World frame: ``(x, y, z)`` in mm, ``z`` up. The sensor frame is
-:mod:`optitact.sensor`'s (origin at the dome's base-circle centre, ``z``
+:mod:`optitact.optics.sensor`'s (origin at the dome's base-circle centre, ``z``
 towards the apex); the finger carries it with ``z_s`` along the last link and
 ``x_s`` along the last joint axis. Joint angles in radians.
 """
@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array, real_number
-from ..errors import InputError, ShapeError
+from optitact._validate import finite, integer, positive, real_array, real_number
+from optitact.errors import InputError, ShapeError
 
 __all__ = ["UnreachableError", "SingularityError", "Finger", "RMRCResult", "POSE_DOWN", "POSE_SCAN",
            "POSE_TRACE"]

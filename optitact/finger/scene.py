@@ -6,7 +6,7 @@
   the dome's columnar feelers against the objects.
 * :func:`world_from_local` / :func:`local_from_world` -- element-local forces
   and world force vectors, through the sensor's pose
-  (:func:`optitact.forces.global_from_local` and the pose's rotation).
+  (:func:`optitact.optics.force_frames.global_from_local` and the pose's rotation).
 * :func:`sliding_friction` -- a specimen's kinetic friction coefficient with a
   mild speed dependence.
 
@@ -15,7 +15,7 @@ Convention
 World frame: ``(x, y, z)`` in mm, ``z`` up, the table top at ``z = 0`` in the
 experiments. A sensor pose is ``(rotation, origin)``: a sensor-frame point
 ``q`` is at ``origin + rotation @ q`` in the world
-(:meth:`optitact.finger.Finger.sensor_pose`). Element-local forces as
+(:meth:`optitact.finger.kinematics.Finger.sensor_pose`). Element-local forces as
 everywhere in optitact (``Fz`` > 0 presses the element onto the dome).
 """
 
@@ -26,10 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import finite, positive, real_array, real_number
-from ..errors import ShapeError
-from ..sensor import DomeSensor
-from .kinematics import _point
+from optitact._validate import finite, positive, real_array, real_number
+from optitact.errors import ShapeError
+from optitact.optics.sensor import DomeSensor
+from optitact.finger.kinematics import _point
 
 __all__ = ["Table", "Cylinder", "Box", "feeler_tips", "feeler_forces", "world_from_local", "local_from_world",
            "sliding_friction"]
@@ -187,11 +187,11 @@ def feeler_forces(sensor: DomeSensor, rotation, origin, objects, *, stiffness: f
     ``F = k delta n`` (frictionless: the contact force is normal to the
     object's surface); the force is rotated into the sensor frame and split
     into the element's normal (compression ``Fz``) and shear with
-    :func:`optitact.forces.local_from_global`. Between feelers the dome
+    :func:`optitact.optics.force_frames.local_from_global`. Between feelers the dome
     itself is not tested for contact (the tips stand out by more than the
     sag between neighbours, 0.3 mm on the default dome).
     """
-    from optitact.forces import local_from_global
+    from optitact.optics.force_frames import local_from_global
 
     k = positive(stiffness, "stiffness")
     tips = feeler_tips(sensor, rotation, origin, feeler_height=feeler_height)
@@ -215,10 +215,10 @@ def world_from_local(sensor: DomeSensor, forces, rotations) -> np.ndarray:
 
     Notes
     -----
-    :func:`optitact.forces.global_from_local` per frame (sensor frame), then
+    :func:`optitact.optics.force_frames.global_from_local` per frame (sensor frame), then
     the frame's rotation: ``F_world = R F_sensor``.
     """
-    from optitact.forces import global_from_local
+    from optitact.optics.force_frames import global_from_local
 
     f = real_array(forces, "forces")
     if f.ndim != 3:
@@ -230,7 +230,7 @@ def world_from_local(sensor: DomeSensor, forces, rotations) -> np.ndarray:
 
 def local_from_world(sensor: DomeSensor, forces_world, rotations) -> np.ndarray:
     """Inverse of :func:`world_from_local`: element-local forces (T, N, 3) from world force vectors."""
-    from optitact.forces import local_from_global
+    from optitact.optics.force_frames import local_from_global
 
     w = real_array(forces_world, "forces_world")
     if w.ndim != 3:

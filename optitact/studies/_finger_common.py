@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 
-from .._validate import seed_value
-from ..errors import InputError
-from ..finger import ChainSimulator
+from optitact._validate import seed_value
+from optitact.errors import InputError
+from optitact.finger.chain import ChainSimulator
 
 __all__: list[str] = []
 

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import seed_value
-from ..errors import InputError
+from optitact._validate import seed_value
+from optitact.errors import InputError
 
 __all__ = ["SIZES", "Study", "get", "jsonable", "key_figures", "names", "run", "save_plot", "study_seeds"]
 
@@ -176,7 +176,7 @@ def run(name: str, *, seed: int = 0, size: str = "quick", progress: bool = False
         raise InputError(f"size must be one of {SIZES}, got {size!r}")
     path = None
     if cache:
-        from .._cache import cache_dir
+        from optitact.io.cache import cache_dir
 
         path = cache_dir() / "studies" / f"{name}-{size}-{seed}-{_source_token()}.json"
         if path.is_file():
@@ -191,7 +191,7 @@ def run(name: str, *, seed: int = 0, size: str = "quick", progress: bool = False
     result = jsonable({**body, "study": name, "seed": seed, "size": size, "full": size == "full",
                        "published": dict(study.published), "seconds": time.perf_counter() - t0})
     if path is not None:
-        from ..io import atomic_write_text
+        from optitact.io.files import atomic_write_text
 
         atomic_write_text(path, json.dumps(result))
     return result
@@ -203,7 +203,7 @@ def save_plot(name: str, result: Mapping, path) -> Path:
     Needs the ``plot`` extra (matplotlib). A result that lacks what the figure
     needs is an :class:`~optitact.errors.InputError`.
     """
-    from .._optional import require
+    from optitact._optional import require
 
     study = get(name)
     if study.draw is None:
@@ -217,7 +217,7 @@ def save_plot(name: str, result: Mapping, path) -> Path:
     except (KeyError, IndexError, TypeError) as exc:
         raise InputError(f"result is not a complete {name!r} study result "
                          f"({type(exc).__name__}: {exc})") from exc
-    from ..io import atomic_write_png_figure
+    from optitact.io.files import atomic_write_png_figure
 
     return atomic_write_png_figure(fig, path)
 

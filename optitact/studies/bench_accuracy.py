@@ -11,8 +11,8 @@ import numpy as np
 
 from optitact._validate import integer
 from optitact.errors import InputError
-from optitact.camera import FisheyeCamera
-from optitact.uncertainty import coverage, coverage_spread, error_ratio
+from optitact.optics.camera import FisheyeCamera
+from optitact.pipeline.uncertainty import coverage, coverage_spread, error_ratio
 
 __all__ = ["SINGLE_FRAMES_FACTOR", "bench_accuracy"]
 
@@ -62,7 +62,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         below it, as none (for ``contact_flag_error_rate``).
     render_mode, test_render_mode : str
         How the calibration and the held-out frames are rendered (see
-        :func:`optitact.calib.generate`); by default the calibration comes
+        :func:`optitact.calib.sets.generate`); by default the calibration comes
         from the two-stage light transport and is tested on path-traced frames.
     families : sequence of str
         Load-pattern families of held-out sets (:data:`optitact.calib.patterns.FAMILIES`),
@@ -77,7 +77,7 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         ``test_set``): rendered like the held-out sets (``test_render_mode``,
         ``test_spp``) with the ``blend`` pattern and seed ``seed + 900``, it
         measures each model's own error
-        (:meth:`~optitact.calib.Calibration.validated`) for the error bars;
+        (:meth:`~optitact.calib.fit.Calibration.validated`) for the error bars;
         neither the curves nor any held-out set see it. Default 60: ten
         frames of each family (with 20, the error models' floors rested on
         about three frames a family).
@@ -99,14 +99,14 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         ``max_abs_error_n``, ``contact_flag_error_rate``, ``clamped_rate``
         and ``coverage_90`` (per axis: the fraction of true forces inside
         the estimate's 90 % interval, ``+- 1.645`` standard errors of
-        :meth:`~optitact.calib.Calibration.stderr`: the frames' pixel noise,
+        :meth:`~optitact.calib.fit.Calibration.stderr`: the frames' pixel noise,
         measured (:func:`frame_noise`), through
-        :func:`optitact.uncertainty.reading_errors`, plus the model's error
+        :func:`optitact.pipeline.uncertainty.reading_errors`, plus the model's error
         measured on the validation set; without one, the fit residuals), ``coverage_90_sd`` (its
         standard deviation over the frames drawn again with replacement:
-        :func:`optitact.uncertainty.coverage_spread`), ``error_ratio`` (the errors in
+        :func:`optitact.pipeline.uncertainty.coverage_spread`), ``error_ratio`` (the errors in
         those standard errors, root mean square: 1 when they are right, whatever the
-        tails; :func:`optitact.uncertainty.error_ratio`), ``error_ratio_per_ring`` (the
+        tails; :func:`optitact.pipeline.uncertainty.error_ratio`), ``error_ratio_per_ring`` (the
         same per ring of elements) and ``coverage_90_fit_residuals``
         (the same with the fit residuals as the model error), over every loaded
         element sample (``Fz > 0``) of the
@@ -120,8 +120,10 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
         together, with their ``samples`` and ``frames``; and
         ``worst_family``: per model and axis, the family with the largest RMSE.
     """
-    from optitact._cache import cache_dir
-    from optitact.calib import MODELS, CalibrationSet, Design, fit, generate
+    from optitact.io.cache import cache_dir
+    from optitact.calib.curves import MODELS
+    from optitact.calib.sets import CalibrationSet, Design, generate
+    from optitact.calib.fit import fit
     from optitact.calib.patterns import FAMILIES
     from optitact.calib.plots import plot_errors
 
@@ -269,8 +271,8 @@ def bench_accuracy(*, frames: int = 100, test_frames: int = 30, spp: int = 64,
 
 def _reading_errors(fset, readings, noise):
     """The readings' covariance from the set's stored frames and ``noise``, or None for a set without frames."""
-    from optitact.pipeline import Pipeline
-    from optitact.uncertainty import reading_errors
+    from optitact.pipeline.frame_pipeline import Pipeline
+    from optitact.pipeline.uncertainty import reading_errors
 
     if not fset.attrs.get("keep_frames") or "frames" not in fset._group:
         print(f"optitact: bench accuracy: {fset.path} holds no frames; no coverage_90", file=sys.stderr)
@@ -302,7 +304,7 @@ def frame_noise(fset, *, repeats: int = 4, frame: int = 0):
     info : dict
         How it was obtained, for the bench's JSON.
     """
-    from optitact.uncertainty import PixelNoise
+    from optitact.pipeline.uncertainty import PixelNoise
 
     mode = fset.attrs.get("render_mode", "full")
     if mode == "two_stage":
@@ -330,11 +332,11 @@ def _maker(fset, *, keep_frames: bool = False):
         Two-stage frames made with another emission table than the shipped one.
     """
     from optitact.calib.sets import FrameMaker
-    from optitact.io import json_fingerprint
+    from optitact.io.files import json_fingerprint
 
     table = None
     if fset.attrs.get("render_mode", "full") == "two_stage":
-        from optitact.render.twostage import shipped_table
+        from optitact.render.emission import shipped_table
 
         table = shipped_table(fset.sensor)
         made = fset.attrs.get("two_stage_table")
@@ -354,8 +356,8 @@ def _made_again(fset, forces, seeds, names, kind: str) -> dict:
     Renders take seconds each, so they are kept in the user cache folder
     (subfolder ``kind``), keyed by the set, the loads and the seeds.
     """
-    from optitact._cache import cached_arrays
-    from optitact.io import json_fingerprint
+    from optitact.io.cache import cached_arrays
+    from optitact.io.files import json_fingerprint
 
     forces = np.asarray(forces, dtype=np.float64)
 
@@ -392,7 +394,7 @@ def render_floor(fset, cals: dict, frames: int, fs) -> dict:
         Per model ``{"fx_floor_pct_fs", "fy_floor_pct_fs", "fz_floor_pct_fs"}``
         (% of ``fs``), with ``frames`` and ``samples`` (loaded samples).
     """
-    from optitact.readings import Readings
+    from optitact.pipeline.readings import Readings
 
     if fset.attrs.get("render_mode", "full") == "two_stage":
         seeds_note = "two-stage frames: no Monte Carlo noise, the camera's alone"
@@ -455,7 +457,7 @@ def _plot_families(out: dict, path):
     axis, the fraction of true forces inside the last model's 90 % intervals.
     """
     from optitact._optional import require
-    from optitact.io import atomic_write_png_figure
+    from optitact.io.files import atomic_write_png_figure
 
     require("matplotlib", purpose="the accuracy plot")
     from matplotlib.figure import Figure

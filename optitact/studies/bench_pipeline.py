@@ -17,8 +17,8 @@ import time
 import numpy as np
 
 from optitact._validate import integer
-from optitact.camera import FisheyeCamera
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.sensor import DomeSensor
 
 __all__ = ["LOAD_CASES", "WARM_PASSES", "bench_pipeline"]
 
@@ -60,8 +60,8 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = 
     import subprocess
     import tempfile
 
-    from optitact import regions
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline import regions
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     def build(cache: bool) -> float:
         regions._fold_cached.cache_clear()
@@ -114,8 +114,8 @@ def _one_load(sensor, camera, forces, baseline, pipes, *, n_frames, repeats, n_r
     """The figures of one size and load case (see :func:`bench_pipeline`)."""
     from tqdm import tqdm
 
-    from optitact._fastpath import run_blocks
-    from optitact.ccd import CCD
+    from optitact.pipeline.fastpath import run_blocks
+    from optitact.optics.ccd import CCD
     from optitact.render import render
 
     fast, numpy_pipe, one_thread, all_threads, ref = pipes
@@ -250,9 +250,9 @@ def bench_pipeline(sizes=((320, 240), (640, 480), (1280, 960), (1920, 1440)), *,
     import os
     import platform
 
-    from optitact.ccd import CCD
-    from optitact._fastpath import cores as _cores
-    from optitact.pipeline import Pipeline
+    from optitact.optics.ccd import CCD
+    from optitact.pipeline.fastpath import cores as _cores
+    from optitact.pipeline.frame_pipeline import Pipeline
     from optitact.studies.bench_render import render_cases
 
     n_frames = integer(n_frames, "n_frames", minimum=1)

@@ -71,12 +71,12 @@ def recording(width: int, height: int, codec: str, *, frames: int, seed: int) ->
     """
     import cv2
 
-    from optitact._cache import cache_dir
-    from optitact.camera import FisheyeCamera
-    from optitact.ccd import CCD
-    from optitact.io import atomic_write
+    from optitact.io.cache import cache_dir
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.optics.ccd import CCD
+    from optitact.io.files import atomic_write
     from optitact.render import render
-    from optitact.sensor import DomeSensor
+    from optitact.optics.sensor import DomeSensor
     from optitact.studies.bench_render import render_cases
 
     if codec not in CODECS:
@@ -164,9 +164,9 @@ def bench_process(sizes=((640, 480), (1280, 960)), *, codecs=("MJPG",), frames: 
     from tqdm import tqdm
 
     from optitact import cli
-    from optitact.calib import default_calibration
-    from optitact.camera import FisheyeCamera
-    from optitact._fastpath import cores as _cores
+    from optitact.calib.shipped import default_calibration
+    from optitact.optics.camera import FisheyeCamera
+    from optitact.pipeline.fastpath import cores as _cores
 
     frames = integer(frames, "frames", minimum=NOLOAD_FRAMES + 1)
     repeats = integer(repeats, "repeats", minimum=1)

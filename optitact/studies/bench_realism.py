@@ -25,7 +25,7 @@ no pose. Then, per stand-in:
 
 1. ``nominal``: the default sensor and camera with the shipped calibration
    (what a user gets today);
-2. ``registered``: :func:`optitact.register` on a no-load frame and six frames
+2. ``registered``: :func:`optitact.registration.pose` on a no-load frame and six frames
    pressing every element once at one gauge setting (pose, element offsets and
    gains), with the shipped calibration transferred to the result;
 3. ``presses``: the registered pipeline and a calibration fitted from ``N``
@@ -51,10 +51,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from optitact._validate import integer
-from optitact.camera import Camera, FisheyeCamera
-from optitact.camera_models import OpenCVFisheyeCamera, pose_from_position
+from optitact.optics.camera import Camera, FisheyeCamera
+from optitact.optics.camera_models import OpenCVFisheyeCamera, pose_from_position
 from optitact.errors import InputError, OptitactWarning
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
 __all__ = ["StandIn", "draw_standin", "bench_realism", "REGISTRATION_PRESSES"]
 
@@ -151,8 +151,9 @@ class _Frames:
     """Renders and exposes frames of one stand-in (two-stage, its own camera and geometry)."""
 
     def __init__(self, standin: StandIn, *, variant=None):
-        from optitact.ccd import CCD
-        from optitact.render.twostage import noload_radiance, shipped_table
+        from optitact.optics.ccd import CCD
+        from optitact.render.background import noload_radiance
+        from optitact.render.emission import shipped_table
 
         self.standin = standin
         designed = DomeSensor.default()
@@ -188,7 +189,7 @@ def _readings(frames: _Frames, pipelines: dict, forces: np.ndarray, seed: int, d
     """Render every frame of ``forces`` (T, E, 3) once and read it with every pipeline: {name: Readings}."""
     from tqdm import tqdm
 
-    from optitact.readings import Readings
+    from optitact.pipeline.readings import Readings
 
     seeds = np.random.SeedSequence([seed, 11]).generate_state(len(forces))
     out = {k: [] for k in pipelines}
@@ -251,7 +252,7 @@ def _press_calibrations(readings, gauge, n: int, reg, start, options: dict, seed
     A fit that is refused (from scratch below its minimum presses) is ``{"refused": message}``.
     """
     from optitact.calib.press_fit import fit_presses
-    from optitact.readings import Readings
+    from optitact.pipeline.readings import Readings
 
     pressed = np.any(gauge != 0, axis=-1) & readings.contact & ~readings.saturated
     rng = np.random.default_rng([seed, n, 19])
@@ -318,11 +319,13 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         (``ns``, ``refined``, ``scratch``), ``matched``; and ``summary``: the
         per-axis RMSE medians over the force stand-ins), ``setup``.
     """
-    from optitact.calib import Calibration, default_calibration
+    from optitact.calib.fit import Calibration
+    from optitact.calib.shipped import default_calibration
     from optitact.calib.patterns import pattern_forces
     from optitact.calib.sets import Design, design_forces
-    from optitact.pipeline import Pipeline
-    from optitact.register import RegistrationError, register
+    from optitact.pipeline.frame_pipeline import Pipeline
+    from optitact.errors import RegistrationError
+    from optitact.registration.pose import register
 
     sensors = integer(sensors, "sensors", minimum=1)
     force_sensors = integer(force_sensors, "force_sensors", minimum=0)
@@ -453,7 +456,7 @@ def _summary(rows: list, ns) -> dict:
 
 def _plot(result: dict, path):
     from optitact._optional import require
-    from optitact.io import atomic_write_png_figure
+    from optitact.io.files import atomic_write_png_figure
 
     require("matplotlib", purpose="the realism plot")
     import matplotlib

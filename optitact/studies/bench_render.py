@@ -12,9 +12,9 @@ import time
 import numpy as np
 
 from optitact._validate import integer
-from optitact.camera import FisheyeCamera
+from optitact.optics.camera import FisheyeCamera
 from optitact.errors import InputError
-from optitact.sensor import DomeSensor
+from optitact.optics.sensor import DomeSensor
 
 __all__ = ["bench_render", "render_cases", "RENDER_MODES"]
 
@@ -24,7 +24,7 @@ SPP_MIN_ADAPTIVE = 64
 
 def render_cases(sensor: DomeSensor, seed: int = 11) -> dict[str, np.ndarray]:
     """The fixed load cases of the render benchmark: 1, 5 and 41 loaded elements, light and heavy."""
-    from optitact.loads import random_load
+    from optitact.optics.loads import random_load
 
     five = [0, 1, 3, 9, 25]
     cases = {}
@@ -43,7 +43,7 @@ def render_cases(sensor: DomeSensor, seed: int = 11) -> dict[str, np.ndarray]:
 
 def _render_readings(images: dict, sensor, camera, noload, ccd, cal):
     """Readings (and forces) of noise-free camera frames made from radiance images."""
-    from optitact.pipeline import Pipeline
+    from optitact.pipeline.frame_pipeline import Pipeline
 
     options = dict(cal.pipeline_options) if cal is not None else {}
     pipe = Pipeline(sensor, camera, baseline=ccd.mean_dn(noload), **options)
@@ -128,11 +128,13 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     """
     from tqdm import tqdm
 
-    from optitact._cache import cached_render
-    from optitact.calib import default_calibration
-    from optitact.ccd import CCD
-    from optitact.render import active_variant, render, spot_pixels
-    from optitact.render.twostage import emission_table, noload_radiance
+    from optitact.render.cache import cached_render
+    from optitact.calib.shipped import default_calibration
+    from optitact.optics.ccd import CCD
+    from optitact.render.backend import active_variant
+    from optitact.render import render, spot_pixels
+    from optitact.render.emission import emission_table
+    from optitact.render.background import noload_radiance
 
     spps = tuple(integer(v, "spps[]", minimum=1) for v in spps)
     n_subs = tuple(integer(v, "n_subs[]", minimum=1) for v in n_subs)
@@ -261,7 +263,7 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
               "calibration": "shipped (default)" if cal is not None else None}
     if plot is not None:
         from optitact._optional import require
-        from optitact.io import atomic_write_png_figure
+        from optitact.io.files import atomic_write_png_figure
 
         fig = require("matplotlib.figure", purpose="plots").Figure(figsize=(6, 4.5), layout="constrained")
         ax = fig.subplots()

@@ -17,8 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..errors import InputError
-from .noise_sweep import _compact_level, _compact_levels, run
+from optitact.errors import InputError
+from optitact.studies.noise_sweep import _compact_level, _compact_levels, run
 
 __all__ = ["STRESS_TESTS", "bench_stability"]
 

@@ -1,7 +1,7 @@
 """The ``finger`` study: the dome sensor on a 3-DOF finger, friction scanning, slip and contour tracing.
 
 The three published experiments of the sensor's inventors, run through the
-simulated chain (:class:`optitact.finger.ChainSimulator`: every force is
+simulated chain (:class:`optitact.finger.chain.ChainSimulator`: every force is
 estimated from rendered frames, never read from the simulation):
 
 * :func:`optitact.studies.finger_scanning.surface_scanning` -- friction
@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import time
 
-from .._validate import integer, positive
-from ..errors import InputError
-from ..finger import ChainSimulator
-from . import finger_contour, finger_scanning, finger_slip
-from ._finger_common import chain_for, need, study_seed
-from ._protocol import Study
+from optitact._validate import integer, positive
+from optitact.errors import InputError
+from optitact.finger.chain import ChainSimulator
+from optitact.studies import finger_contour, finger_scanning, finger_slip
+from optitact.studies._finger_common import chain_for, need, study_seed
+from optitact.studies._protocol import Study
 
 __all__ = ["STUDY", "experiment", "extended_calibration", "draw"]
 
@@ -38,14 +38,14 @@ def extended_calibration(*, mu_max: float = 0.40, frames: int = 100, spp: int = 
     The shipped calibration's design stops at ``|F_t| / F_z`` = 0.35 and
     clamps centroid shifts beyond its fitted range, which caps an estimated
     friction coefficient at about 0.38 (at 0.1 N). This generates a set
-    like the shipped one (:func:`optitact.calib.generate`, two-stage
+    like the shipped one (:func:`optitact.calib.sets.generate`, two-stage
     transport, ``Design(mu_max=mu_max)``), fits the coupled model and keeps
     the JSON in the cache folder; later calls load it (about 30 s the
     first time once the two-stage table is cached).
     """
     from optitact import calib
 
-    from .._cache import cache_dir
+    from optitact.io.cache import cache_dir
 
     mu_max = positive(mu_max, "mu_max")
     frames = integer(frames, "frames", minimum=8)

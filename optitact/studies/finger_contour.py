@@ -3,7 +3,7 @@
 Seek the table, lift, and trace an object's contour with the published rules
 (approach until an element reads 0.3 N, retreat along the estimated normal,
 advance along the tangent, square search when lost), every force *estimated*
-(:class:`optitact.finger.ChainSimulator`). :func:`contour_tracing` traces,
+(:class:`optitact.finger.chain.ChainSimulator`). :func:`contour_tracing` traces,
 :func:`joint_error_study` adds the finger's own (unmeasured) joint errors to
 read the published deviations, :func:`draw` and :func:`draw_joint_error`
 draw results. Part of the ``finger`` study (:mod:`optitact.studies.finger`).
@@ -18,23 +18,13 @@ import time
 
 import numpy as np
 
-from .._validate import integer, positive
-from ..errors import InputError
-from ..finger import (
-    POSE_TRACE,
-    Box,
-    ChainSimulator,
-    Cylinder,
-    Finger,
-    SingularityError,
-    Table,
-    UnreachableError,
-    feeler_forces,
-    feeler_tips,
-    world_from_local,
-)
-from ._finger_common import chain_for, need, study_seed
-from ._protocol import jsonable
+from optitact._validate import integer, positive
+from optitact.errors import InputError
+from optitact.finger.kinematics import POSE_TRACE, Finger, SingularityError, UnreachableError
+from optitact.finger.scene import Box, Cylinder, Table, feeler_forces, feeler_tips, world_from_local
+from optitact.finger.chain import ChainSimulator
+from optitact.studies._finger_common import chain_for, need, study_seed
+from optitact.studies._protocol import jsonable
 
 __all__ = ["contour_tracing", "joint_error_study", "draw", "draw_joint_error", "PUBLISHED_DEVIATION_MM"]
 
@@ -121,7 +111,7 @@ def _trace_one(obj, chain: ChainSimulator, finger: Finger, *, start_y: float, en
                approach_step: float, retreat: float, contact_threshold: float, table_threshold: float,
                lift: float, stiffness: float, feeler_height: float, max_frames: int, corner_margin: float,
                first_index: int, joint_error_deg: float = 0.0, rng=None, gap: float = 4.0) -> dict:
-    from optitact.forces import ContactDetector
+    from optitact.forces.contact_events import ContactDetector
 
     sensor = chain.sensor
     r_tip = sensor.outer_radius + feeler_height
@@ -239,7 +229,8 @@ def contour_tracing(*, chain: ChainSimulator | None = None, objects=("cylinder",
         Default ``ChainSimulator(seed=seed)``.
     objects : sequence
         ``"cylinder"`` (radius 30 mm), ``"box"`` (40 x 40 mm, a corner
-        facing the finger) or :class:`optitact.finger.Cylinder` / :class:`~optitact.finger.Box` instances
+        facing the finger) or :class:`~optitact.finger.scene.Cylinder` /
+        :class:`~optitact.finger.scene.Box` instances
         (placed in front of the finger, near x = 200 mm).
     finger : Finger, optional
         Default ``Finger()``, in ``POSE_TRACE`` (sensor axis 45 deg down).
@@ -252,12 +243,12 @@ def contour_tracing(*, chain: ChainSimulator | None = None, objects=("cylinder",
         (mm), default 1 and 2.
     contact_threshold, table_threshold : float
         Per-element normal force thresholds (N), published 0.3 and 0.2
-        (with hysteresis, :class:`optitact.forces.ContactDetector`).
+        (with hysteresis, :class:`optitact.forces.contact_events.ContactDetector`).
     lift : float
         Clearance of the lowest feeler above the table while tracing (mm),
         published 5.
     stiffness, feeler_height : float
-        Of :func:`optitact.finger.feeler_forces`.
+        Of :func:`optitact.finger.scene.feeler_forces`.
     max_frames : int
         Frame budget per object (default 120).
     corner_margin : float

@@ -2,8 +2,8 @@
 
 The apex element presses on a specimen and the finger slides it along a
 straight stroke; the friction coefficient comes from the *estimated* forces
-(:class:`optitact.finger.ChainSimulator`) over the steady part of the slide
-(:func:`optitact.forces.friction_coefficient`). :func:`surface_scanning` runs
+(:class:`optitact.finger.chain.ChainSimulator`) over the steady part of the slide
+(:func:`optitact.forces.friction.friction_coefficient`). :func:`surface_scanning` runs
 it, :func:`draw` draws a result. Part of the ``finger`` study
 (:mod:`optitact.studies.finger`).
 """
@@ -16,11 +16,13 @@ import time
 
 import numpy as np
 
-from .._validate import positive, real_number
-from ..errors import InputError
-from ..finger import POSE_SCAN, ChainSimulator, Finger, local_from_world, sliding_friction, world_from_local
-from ._finger_common import ar1, chain_for, need, rounded, study_seed
-from ._protocol import jsonable
+from optitact._validate import positive, real_number
+from optitact.errors import InputError
+from optitact.finger.kinematics import POSE_SCAN, Finger
+from optitact.finger.chain import ChainSimulator
+from optitact.finger.scene import local_from_world, sliding_friction, world_from_local
+from optitact.studies._finger_common import ar1, chain_for, need, rounded, study_seed
+from optitact.studies._protocol import jsonable
 
 __all__ = ["surface_scanning", "draw"]
 
@@ -87,13 +89,13 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
     slide_time : float
         Duration of the sliding stroke (s), default 2.5.
     speed_coefficient : float
-        ``c`` of :func:`optitact.finger.sliding_friction` (default 0.01).
+        ``c`` of :func:`optitact.finger.scene.sliding_friction` (default 0.01).
     tolerance : float
         The accepted ``|mu_est - mu_sim|``, published 0.02.
     lean_deg : float
         Lean of the sensor axis from straight down towards the sliding
         direction (deg), default 9, held along the stroke with the z-stage
-        (:meth:`optitact.finger.Finger.rmrc_lean`); see *Notes*. 0 presses the apex straight
+        (:meth:`optitact.finger.kinematics.Finger.rmrc_lean`); see *Notes*. 0 presses the apex straight
         down.
     finger : Finger, optional
         Default ``Finger()``; the stroke is a straight radial line of the apex
@@ -128,11 +130,11 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
     with the sensor orientation from the finger's kinematics, rendered and
     read back; the estimated forces are turned back into world normal and
     tangential components with the same orientation, and
-    :func:`optitact.forces.friction_coefficient` finds the steady part.
+    :func:`optitact.forces.friction.friction_coefficient` finds the steady part.
 
     Why the lean: the element's columnar feeler tips over when
     ``h |F_t| > r F_z`` (lever arm ``h`` = 3 mm, cone circle ``r`` = 1.25 mm:
-    at ``|F_t| / F_z`` of about 0.37-0.40, :func:`optitact.contact.cone_loads`);
+    at ``|F_t| / F_z`` of about 0.37-0.40, :func:`optitact.optics.contact.cone_loads`);
     beyond that the centroid stops following the shear, so an element whose
     axis is along the specimen's normal cannot measure ``mu`` = 0.53 at any
     normal force. With the sensor axis leaning by ``beta`` towards the
@@ -145,13 +147,13 @@ def surface_scanning(*, chain: ChainSimulator | None = None, frictions=(0.39, 0.
     than the apex's indentation). A three-joint finger cannot hold an
     orientation while it moves (the lean would drift by about 0.55 deg/mm
     along a radial stroke); the z-stage as a fourth axis holds it
-    (:meth:`optitact.finger.Finger.rmrc_lean`). The world ``mu`` is recovered exactly by
+    (:meth:`optitact.finger.kinematics.Finger.rmrc_lean`). The world ``mu`` is recovered exactly by
     rotating the estimated forces back, so the lean changes what the element
     sees, not what is measured.
     """
     from tqdm import tqdm
 
-    from optitact.forces import friction_coefficient
+    from optitact.forces.friction import friction_coefficient
 
     seed = study_seed(seed)
     chain = chain_for(chain, seed)

@@ -2,8 +2,8 @@
 
 The apex element presses on a block and the finger drags it around a
 rectangle; slip episodes are injected at known times and detected from the
-*estimated* shear (:class:`optitact.finger.ChainSimulator`) with
-:func:`optitact.forces.detect_slip` (the published ±0.06 N/s band).
+*estimated* shear (:class:`optitact.finger.chain.ChainSimulator`) with
+:func:`optitact.forces.slip.detect_slip` (the published ±0.06 N/s band).
 :func:`slip_experiment` runs it, :func:`draw` draws a result. Part of the
 ``finger`` study (:mod:`optitact.studies.finger`).
 """
@@ -15,10 +15,12 @@ import time
 
 import numpy as np
 
-from .._validate import integer, positive
-from ..finger import POSE_DOWN, ChainSimulator, Finger, local_from_world, world_from_local
-from ._finger_common import ar1, chain_for, need, rounded, study_seed
-from ._protocol import jsonable
+from optitact._validate import integer, positive
+from optitact.finger.kinematics import POSE_DOWN, Finger
+from optitact.finger.chain import ChainSimulator
+from optitact.finger.scene import local_from_world, world_from_local
+from optitact.studies._finger_common import ar1, chain_for, need, rounded, study_seed
+from optitact.studies._protocol import jsonable
 
 __all__ = ["slip_experiment", "draw"]
 
@@ -138,7 +140,7 @@ def slip_experiment(*, chain: ChainSimulator | None = None, rectangle=(30.0, 20.
     frame_rate : float
         Frames per second, default 10.
     threshold, window, hold
-        Of :class:`optitact.forces.SlipDetector` (published band 0.06 N/s;
+        Of :class:`optitact.forces.slip.SlipDetector` (published band 0.06 N/s;
         window 0.6 s: 6 samples).
     max_delay : float
         A detection counts for an episode when it comes at most this long
@@ -171,7 +173,7 @@ def slip_experiment(*, chain: ChainSimulator | None = None, rectangle=(30.0, 20.
     works on the magnitude of the estimated horizontal force, obtained
     through the finger's orientation.
     """
-    from optitact.forces import detect_slip
+    from optitact.forces.slip import detect_slip
 
     seed = study_seed(seed)
     chain = chain_for(chain, seed)

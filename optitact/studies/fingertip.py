@@ -17,13 +17,15 @@ import sys
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array, seed_value
-from ..errors import InputError
-from ..sources import Indenter, Scenario
-from ..taxels.decoupling import DecouplingMatrix, axis_ranges, decouple, detection_ranges, repeatability_error
-from ..taxels.fingertip25 import UNIT_PLANE, Fingertip25, force_from_resistance, resistance_law
-from ._protocol import Study, study_seeds
-from .fingertip_objects import OBJECTS, _source, hardness_cues, object_dataset, recognise_objects
+from optitact._validate import finite, integer, positive, real_array, seed_value
+from optitact.errors import InputError
+from optitact.taxels.sources import Indenter, Scenario
+from optitact.taxels.decoupling import (DecouplingMatrix, axis_ranges, decouple, detection_ranges,
+                                        repeatability_error)
+from optitact.taxels.fingertip25 import UNIT_PLANE, Fingertip25, force_from_resistance, resistance_law
+from optitact.studies._protocol import Study, study_seeds
+from optitact.studies.fingertip_objects import (OBJECTS, _source, hardness_cues, object_dataset,
+                                                recognise_objects)
 
 __all__ = ["REPEAT_LEVELS_N", "decoupling_study", "repeated_loadings", "step_response", "run", "draw", "STUDY"]
 

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._optional import require
-from .._validate import finite, integer, positive, real_array, seed_value
-from ..errors import InputError, ShapeError
-from ..taxels.fingertip25 import Fingertip25, force_from_resistance
+from optitact._optional import require
+from optitact._validate import finite, integer, positive, real_array, seed_value
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.fingertip25 import Fingertip25, force_from_resistance
 
 __all__ = ["GraspObject", "OBJECTS", "FINGERS", "RIGID_STIFFNESS_N_PER_MM", "grasp", "ObjectDataset",
            "object_dataset", "hidden_units", "recognise_objects", "hardness_cues"]

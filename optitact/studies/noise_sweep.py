@@ -21,12 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import FisheyeCamera
-from ..ccd import CCD
-from ..errors import InputError
-from ..pipeline import CHUNK_FRAMES, Pipeline
-from ..sensor import DomeSensor
-from ._protocol import Study
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.ccd import CCD
+from optitact.errors import InputError
+from optitact.pipeline.fastpath import CHUNK_FRAMES
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.optics.sensor import DomeSensor
+from optitact.studies._protocol import Study
 
 __all__ = ["FLICKER_TARGETS", "NOMINAL_LOAD_N", "NOMINAL_WIDTH_MM", "STUDY", "SWEEP_FACTORS", "flicker_check",
            "noise_sweep", "nominal_energy", "run"]
@@ -233,7 +234,7 @@ def nominal_energy(sensor: DomeSensor | None = None, load_n: float = NOMINAL_LOA
     The energy of a typical spot on the default camera and CCD: the inverse
     of the calibration's g(G) with u = 0, by bisection.
     """
-    from optitact.calib import default_calibration
+    from optitact.calib.shipped import default_calibration
 
     cal = default_calibration()
     if sensor is not None and sensor != cal.sensor:

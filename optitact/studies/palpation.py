@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import integer, seed_value
-from ..errors import InputError
-from ..taxels.dtw import classify, dtw_matrix
-from ..taxels.grasp import OBJECTS, GraspProtocol, PalpationObject, default_jaws, grasp, mu_sigma
-from ..taxels.thread8 import Thread8
-from ._protocol import Study, study_seeds
+from optitact._validate import integer, seed_value
+from optitact.errors import InputError
+from optitact.taxels.dtw import classify, dtw_matrix
+from optitact.taxels.grasp import OBJECTS, GraspProtocol, PalpationObject, default_jaws, grasp, mu_sigma
+from optitact.taxels.thread8 import Thread8
+from optitact.studies._protocol import Study, study_seeds
 
 __all__ = ["FEATURES", "SENSORS", "PalpationDataset", "palpation_dataset", "palpation_distances", "PUBLISHED",
            "run", "draw", "STUDY"]

@@ -17,13 +17,13 @@ import sys
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array, seed_value
-from ..errors import InputError
-from ..sources import Indenter, Scenario, TactileSource
-from ..taxels.combined import (WidthClassifier, combined_distribution, diameter_resolution, features,
-                               pair_separation, tracing_direction)
-from ..taxels.piezo16 import Piezo16
-from ._protocol import Study, study_seeds
+from optitact._validate import finite, integer, positive, real_array, seed_value
+from optitact.errors import InputError
+from optitact.taxels.sources import Indenter, Scenario, TactileSource
+from optitact.taxels.combined import (WidthClassifier, combined_distribution, diameter_resolution, features,
+                                      pair_separation, tracing_direction)
+from optitact.taxels.piezo16 import Piezo16
+from optitact.studies._protocol import Study, study_seeds
 
 __all__ = ["N_STEPS", "DIAMETERS_MM", "PUBLISHED", "tracing_dataset", "run", "draw", "STUDY"]
 

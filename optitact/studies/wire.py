@@ -18,14 +18,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .._optional import require
-from .._validate import finite, integer, positive, real_array, seed_value
-from ..errors import InputError
-from ..sources import Indenter
-from ..taxels.opto5 import FINGER_DISTANCE_MAX, Opto5, Opto5Config, grasp_scenario
-from ..taxels.wire import (LookupTableClassifier, NormalisationLUT, calibration_closure, hold_response,
-                           main_direction, wire_shape)
-from ._protocol import Study, study_seeds
+from optitact._optional import require
+from optitact._validate import finite, integer, positive, real_array, seed_value
+from optitact.errors import InputError
+from optitact.taxels.sources import Indenter
+from optitact.taxels.opto5 import FINGER_DISTANCE_MAX, Opto5, Opto5Config, grasp_scenario
+from optitact.taxels.wire import (LookupTableClassifier, NormalisationLUT, calibration_closure, hold_response,
+                                  main_direction, wire_shape)
+from optitact.studies._protocol import Study, study_seeds
 
 __all__ = ["WIRE_DIAMETERS_MM", "svm_classifier", "mlp_classifier", "WireDataset", "wire_dataset",
            "classify_wires", "shape_comparison", "run", "draw", "STUDY"]
@@ -247,7 +247,7 @@ def shape_comparison(source: Opto5, lut: NormalisationLUT, *, n_trials: int = 20
     lut : NormalisationLUT
     n_trials : int
         Edge-wire grasps: roughly horizontal (±10°), slightly curved
-        (|κ| <= 0.01 /mm), axis 4.5–6.5 mm from the centre towards either edge.
+        (``|κ| <= 0.01`` /mm), axis 4.5–6.5 mm from the centre towards either edge.
     seed : int, optional
     diameter_mm : float
         Wire diameter of the edge trials, mm.

@@ -8,7 +8,7 @@ imports no optional dependency (scikit-learn, dtaidistance and matplotlib are
 imported by the functions that need them).
 
 Importing this package registers every taxel sensor type with
-:func:`optitact.sources.register_source`:
+:func:`optitact.taxels.sources.register_source`:
 
 - ``"piezo16"``: distributed piezoresistive finger pad (16x16 grid, 204 units) (:mod:`optitact.taxels.piezo16`);
   active tracing with it in :mod:`optitact.taxels.combined`;

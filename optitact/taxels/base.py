@@ -6,7 +6,7 @@ sensor's ``name``, ``config_type``, the indenter ``shapes`` it simulates,
 the ``Scenario.extra`` keys it reads and whether it is driven by depth or
 force. The base checks the config once in its constructor and a scenario
 once in :meth:`TaxelSource.check_scenario`; :meth:`TaxelSource.register`
-registers the class with :func:`optitact.sources.register_source`.
+registers the class with :func:`optitact.taxels.sources.register_source`.
 
 Examples
 --------
@@ -30,9 +30,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .._validate import positive, real_array, seed_value
-from ..errors import InputError
-from ..sources import Indenter, Scenario, register_source
+from optitact._validate import positive, real_array, seed_value
+from optitact.errors import InputError
+from optitact.taxels.sources import Indenter, Scenario, register_source
 
 __all__ = ["fraction", "range_pair", "check_config", "unit_gains", "noise_rng", "check_scenario",
            "freeze_fields", "TaxelSource"]
@@ -208,5 +208,5 @@ class TaxelSource:
 
     @classmethod
     def register(cls) -> None:
-        """Register this class under :attr:`name` (:func:`optitact.sources.register_source`)."""
+        """Register this class under :attr:`name` (:func:`optitact.taxels.sources.register_source`)."""
         register_source(cls.name, cls.config_type, cls)

@@ -18,7 +18,7 @@ that simulates ``cylinder`` works); the published study is
 
 Examples
 --------
->>> from optitact.sources import make_source
+>>> from optitact.taxels.sources import make_source
 >>> frames = trace(make_source("piezo16"), 20.0, 4, seed=0)
 >>> frames.shape
 (4, 16, 16)
@@ -33,11 +33,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array, seed_value
-from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario, TactileSource
-from .base import freeze_fields
-from .piezo16 import Piezo16
+from optitact._validate import finite, integer, positive, real_array, seed_value
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.sources import Indenter, Layout, Scenario, TactileSource
+from optitact.taxels.base import freeze_fields
+from optitact.taxels.piezo16 import Piezo16
 
 __all__ = ["trace", "tracing_direction", "radial_line", "combined_distribution", "features", "WidthClassifier",
            "pair_separation", "diameter_resolution"]
@@ -150,7 +150,7 @@ def _step_frames(frames, n_steps, layout: Layout | None) -> tuple[np.ndarray, La
 
 def _line(steps: np.ndarray, layout: Layout, radial_axis: str | None) -> tuple[str, int]:
     if radial_axis is None:
-        from ..sources import moments
+        from optitact.taxels.sources import moments
 
         m = moments(steps.sum(axis=0), layout)
         radial_axis = "x" if m["sxx"][0] <= m["syy"][0] else "y"
@@ -228,7 +228,7 @@ def combined_distribution(frames, n_steps: int, *, layout: Layout | None = None,
     Examples
     --------
     >>> import numpy as np
-    >>> from optitact.sources import Layout
+    >>> from optitact.taxels.sources import Layout
     >>> lay = Layout(shape=(2, 3), pitch_mm=(2.2, 2.2), units="V", rate_hz=1000.0)
     >>> f = np.zeros((2, 2, 3))
     >>> f[0, 1] = [1, 2, 3]

@@ -24,11 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import finite, float_like, positive, real_array
-from ..errors import InputError, ShapeError
-from .base import check_config, freeze_fields
-from .fingertip25 import (PLANE_AXIS, UNIT_PLANE, UNIT_SIDE, Fingertip25Config, check_unit_grid,
-                          force_from_resistance)
+from optitact._validate import finite, float_like, positive, real_array
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.base import check_config, freeze_fields
+from optitact.taxels.fingertip25 import (PLANE_AXIS, UNIT_PLANE, UNIT_SIDE, Fingertip25Config, check_unit_grid,
+                                         force_from_resistance)
 
 __all__ = ["plane_resultants", "decouple", "detection_ranges", "axis_ranges", "DecouplingMatrix",
            "repeatability_error"]
@@ -50,7 +50,7 @@ def _unit_values(values, units: str, config) -> np.ndarray:
 
 def plane_resultants(values, *, units: str = "N",
                      config: Fingertip25Config | None = None) -> dict[str, np.ndarray]:
-    r"""Published plane resultants :math:`F_1 ... F_5` of unit readings.
+    r"""Published plane resultants :math:`F_1` to :math:`F_5` of unit readings.
 
     Parameters
     ----------
@@ -154,7 +154,7 @@ def detection_ranges(*, config: Fingertip25Config | None = None) -> dict[str, np
 
 
 def axis_ranges(*, config: Fingertip25Config | None = None) -> dict[str, tuple[float, float]]:
-    """Range of |F| along each axis (one side): all units of the axis at the unit range low and high ends.
+    """Range of the force magnitude along each axis (one side): all units of the axis at the range's ends.
 
     Returns
     -------

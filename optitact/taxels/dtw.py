@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from .._optional import require
-from .._validate import finite, integer, real_array, seed_value
-from ..errors import InputError, ShapeError
+from optitact._optional import require
+from optitact._validate import finite, integer, real_array, seed_value
+from optitact.errors import InputError, ShapeError
 
 __all__ = ["dtw_distance", "dtw_matrix", "cv_folds", "knn_cv", "classify"]
 

@@ -34,10 +34,10 @@ from functools import cached_property
 
 import numpy as np
 
-from .._validate import finite, positive, real_array
-from ..errors import InputError, ShapeError
-from ..sources import INDENTER_SHAPES, Layout, Scenario
-from .base import TaxelSource, check_config, fraction, noise_rng
+from optitact._validate import finite, positive, real_array
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.sources import INDENTER_SHAPES, Layout, Scenario
+from optitact.taxels.base import TaxelSource, check_config, fraction, noise_rng
 
 __all__ = [
     "Fingertip25Config", "Fingertip25", "UNIT_PLANE", "UNIT_SIDE", "PLANE_AXIS", "PUBLISHED_PLANE_UNITS",

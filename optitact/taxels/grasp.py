@@ -24,11 +24,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from .._validate import integer, positive, real_array, seed_value
-from ..errors import InputError
-from ..sources import Indenter, Layout, Scenario
-from .base import fraction
-from .thread8 import SUPPORTED_SHAPES, Thread8, Thread8Config
+from optitact._validate import integer, positive, real_array, seed_value
+from optitact.errors import InputError
+from optitact.taxels.sources import Indenter, Layout, Scenario
+from optitact.taxels.base import fraction
+from optitact.taxels.thread8 import SUPPORTED_SHAPES, Thread8, Thread8Config
 
 __all__ = ["PalpationObject", "OBJECTS", "GraspProtocol", "Grasp", "grasp", "default_jaws", "MOUNT_SPREAD",
            "frame_features", "mu_sigma"]

@@ -1,12 +1,12 @@
 """Indenter geometry: the height of an indenter's surface above its crest, for every shape.
 
-Every taxel source turns a :class:`~optitact.sources.Indenter` pressed
+Every taxel source turns a :class:`~optitact.taxels.sources.Indenter` pressed
 ``depth`` into the sensor into a local overlap ``u = max(0, depth - h)``,
 where ``h(x, y)`` is how far the indenter's surface lies above its lowest
 point (its crest). This module writes ``h`` once for every shape.
 
 Convention: points and poses are in the layout frame (x along columns, y
-along rows, mm, origin at the grid centre; :mod:`optitact.sources`); an
+along rows, mm, origin at the grid centre; :mod:`optitact.taxels.sources`); an
 axis angle runs from +x towards +y.
 """
 
@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 
-from ..errors import InputError
-from ..sources import Indenter
+from optitact.errors import InputError
+from optitact.taxels.sources import Indenter
 
 __all__ = ["surface_height", "overlap"]
 
@@ -73,7 +73,7 @@ def surface_height(indenter: Indenter, px, py, x_mm, y_mm, angle_rad=0.0, *,
 
     Examples
     --------
-    >>> from optitact.sources import Indenter
+    >>> from optitact.taxels.sources import Indenter
     >>> surface_height(Indenter("sphere", 5.0), [0.0, 3.0, 6.0], 0.0, 0.0, 0.0).tolist()
     [0.0, 1.0, inf]
     """

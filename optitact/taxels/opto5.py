@@ -13,7 +13,7 @@ the study itself ``optitact.studies.run("wire")``.
 
 Convention: taxel indices are ``(row, col)``, ``(0, 0)`` top-left; the
 layout frame has x along columns and y along rows (mm), origin at the pad
-centre (:mod:`optitact.sources`). Row 0 lies towards the fingertip, row 4
+centre (:mod:`optitact.taxels.sources`). Row 0 lies towards the fingertip, row 4
 towards the palm. Finger distance is the gripper's own 8-bit encoder value:
 0 = fully open, 255 = fully closed (pads touching), larger = closed tighter.
 
@@ -31,11 +31,11 @@ from functools import cached_property
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array
-from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario
-from .base import TaxelSource, fraction, noise_rng, range_pair, unit_gains
-from .indenter import overlap, surface_height
+from optitact._validate import finite, integer, positive, real_array
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.sources import Indenter, Layout, Scenario
+from optitact.taxels.base import TaxelSource, fraction, noise_rng, range_pair, unit_gains
+from optitact.taxels.indenter import overlap, surface_height
 
 __all__ = ["Opto5Config", "Opto5", "FINGER_DISTANCE_MAX", "SUPPORTED_SHAPES", "check_finger_distance",
            "grasp_scenario"]

@@ -16,12 +16,12 @@ with it is in :mod:`optitact.taxels.combined`, the published study in
 
 Convention: unit indices are ``(row, col)``, ``(0, 0)`` top-left; the layout
 frame has x along columns and y along rows (mm), origin at the grid centre
-(:mod:`optitact.sources`), seen from the touched object. Row 0 is the
+(:mod:`optitact.taxels.sources`), seen from the touched object. Row 0 is the
 fingertip end of the pad.
 
 Examples
 --------
->>> from optitact.sources import make_source
+>>> from optitact.taxels.sources import make_source
 >>> src = make_source("piezo16")
 >>> src.layout.shape, src.layout.n_cells, src.layout.pitch_mm, src.layout.units, src.layout.rate_hz
 ((16, 16), 204, (2.2, 2.2), 'V', 1000.0)
@@ -37,11 +37,11 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array
-from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario
-from .base import TaxelSource, noise_rng, unit_gains
-from .indenter import overlap, surface_height
+from optitact._validate import finite, integer, positive, real_array
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.sources import Indenter, Layout, Scenario
+from optitact.taxels.base import TaxelSource, noise_rng, unit_gains
+from optitact.taxels.indenter import overlap, surface_height
 
 __all__ = ["Piezo16Config", "Piezo16", "SUPPORTED_SHAPES", "FINGER_PAD_MASK", "unit_voltage"]
 

@@ -11,11 +11,11 @@ palpation study in ``optitact.studies.palpation``.
 
 Convention: taxel indices are ``(row, col)``, ``(0, 0)`` top-left; the layout
 frame has x along columns and y along rows (mm), origin at the patch centre
-(:mod:`optitact.sources`), seen from the grasped object.
+(:mod:`optitact.taxels.sources`), seen from the grasped object.
 
 Examples
 --------
->>> from optitact.sources import make_source
+>>> from optitact.taxels.sources import make_source
 >>> src = make_source("thread8")
 >>> src.layout.shape, src.layout.units, src.layout.rate_hz
 ((8, 8), 'DN', 100.0)
@@ -29,11 +29,11 @@ from functools import cached_property
 
 import numpy as np
 
-from .._validate import finite, integer, positive, real_array
-from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario
-from .base import TaxelSource, fraction, noise_rng, unit_gains
-from .indenter import surface_height
+from optitact._validate import finite, integer, positive, real_array
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.sources import Indenter, Layout, Scenario
+from optitact.taxels.base import TaxelSource, fraction, noise_rng, unit_gains
+from optitact.taxels.indenter import surface_height
 
 __all__ = ["Thread8Config", "Thread8", "SUPPORTED_SHAPES"]
 

@@ -14,7 +14,7 @@ The learnt classifiers and the whole study are ``optitact.studies.run("wire")``.
 
 Convention: taxel indices are ``(row, col)``, ``(0, 0)`` top-left; the
 layout frame has x along columns and y along rows (mm), origin at the pad
-centre (:mod:`optitact.sources`).
+centre (:mod:`optitact.taxels.sources`).
 
 Examples
 --------
@@ -32,12 +32,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._optional import require
-from .._validate import finite, float_like, integer, positive, real_array
-from ..errors import InputError, ShapeError
-from ..sources import Indenter, Layout, Scenario, moments
-from .base import freeze_fields
-from .opto5 import FINGER_DISTANCE_MAX, Opto5, check_finger_distance
+from optitact._optional import require
+from optitact._validate import finite, float_like, integer, positive, real_array
+from optitact.errors import InputError, ShapeError
+from optitact.taxels.sources import Indenter, Layout, Scenario, moments
+from optitact.taxels.base import freeze_fields
+from optitact.taxels.opto5 import FINGER_DISTANCE_MAX, Opto5, check_finger_distance
 
 __all__ = [
     "remove_offset", "NormalisationLUT", "calibration_closure", "hold_response", "WireShape", "main_direction",

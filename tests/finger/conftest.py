@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import pytest
+from optitact.calib.fit import fit
+from optitact.calib.sets import generate
 
 import optitact
-from optitact.calib import fit, generate
-from optitact.finger import ChainSimulator
+from optitact.finger.chain import ChainSimulator
 
-TINY = optitact.FisheyeCamera(width=120, height=90)
+TINY = optitact.optics.camera.FisheyeCamera(width=120, height=90)
 
 
 @pytest.fixture(scope="session")

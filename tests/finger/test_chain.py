@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
+from optitact.calib.document import CalibrationMismatchError
 
 import optitact
-from optitact.calib import CalibrationMismatchError
 from optitact.errors import InputError, ShapeError
-from optitact.finger import ChainSimulator
+from optitact.finger.chain import ChainSimulator
 
 
 @pytest.mark.render
@@ -31,7 +31,7 @@ def test_chain_estimates_through_the_real_chain(tiny_chain):
 
 def test_chain_checks(tiny_chain):
     with pytest.raises(CalibrationMismatchError):
-        ChainSimulator(tiny_chain.calibration, camera=optitact.FisheyeCamera())
+        ChainSimulator(tiny_chain.calibration, camera=optitact.optics.camera.FisheyeCamera())
     with pytest.raises(InputError, match="must not set"):
         ChainSimulator(tiny_chain.calibration, render_options={"spp": 3})
     with pytest.raises(TypeError, match="Calibration"):

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
-import optitact.finger as fg
+from optitact.finger.kinematics import POSE_DOWN, POSE_SCAN
 from optitact.errors import InputError, ShapeError
-from optitact.finger import Finger, SingularityError, UnreachableError
-
+from optitact.finger.kinematics import Finger, SingularityError, UnreachableError
 
 # ---------------------------------------------------------------------------- kinematics
 FINGERS = [Finger(), Finger(phi1_deg=10.0, phi2_deg=-15.0, d=(12.0, 3.0, -2.0), a=(5.0, 90.0, 70.0),
@@ -38,7 +36,7 @@ def test_forward_frames_and_sensor_pose():
     np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-12)
     assert np.linalg.det(rot) == pytest.approx(1.0)
     np.testing.assert_allclose(origin + f.tool * rot[:, 2], f.forward(th, z=4.0), atol=1e-12)
-    rot_down, _ = f.sensor_pose(fg.POSE_DOWN)
+    rot_down, _ = f.sensor_pose(POSE_DOWN)
     np.testing.assert_allclose(rot_down[:, 2], [0, 0, -1], atol=1e-12)  # the apex points down
     # z-stage and base tilt: a pure translation / rotation of the whole finger
     tilted = Finger(phi1_deg=20.0)
@@ -104,7 +102,7 @@ def test_stage_jacobian_matches_finite_differences(finger):
 
 def test_rmrc_lean_holds_the_lean_along_a_stroke():
     f = Finger()
-    start = f.rmrc_lean(f.forward(fg.POSE_SCAN), 9.0, fg.POSE_SCAN)
+    start = f.rmrc_lean(f.forward(POSE_SCAN), 9.0, POSE_SCAN)
     assert np.degrees(f.lean(start.theta, z=start.z)) == pytest.approx(9.0, abs=1e-5)
     th, z = start.theta, start.z
     plain = []
@@ -114,31 +112,31 @@ def test_rmrc_lean_holds_the_lean_along_a_stroke():
         th, z = r.theta, r.z
         np.testing.assert_allclose(f.forward(th, z=z), target, rtol=0, atol=1e-6)
         assert np.degrees(f.lean(th, z=z)) == pytest.approx(9.0, abs=1e-6)
-        plain.append(np.degrees(f.lean(f.rmrc(target, fg.POSE_SCAN, z=start.z).theta, z=start.z)))
+        plain.append(np.degrees(f.lean(f.rmrc(target, POSE_SCAN, z=start.z).theta, z=start.z)))
     assert np.ptp(plain) > 20  # three joints alone let the lean drift by ~0.55 deg/mm
     with pytest.raises(SingularityError, match="z-stage Jacobian"):
         f.rmrc_lean(start.position + [10.0, 0, 0], 9.0, [0.0, 0.0, np.radians(-81.0)])  # link 2 horizontal
     with pytest.raises(InputError, match="lean_deg"):
-        f.rmrc_lean(start.position, 90.0, fg.POSE_SCAN)
+        f.rmrc_lean(start.position, 90.0, POSE_SCAN)
     with pytest.raises(InputError, match="non-zero"):
-        f.rmrc_lean(start.position, 9.0, fg.POSE_SCAN, direction=(0, 0, 0))
+        f.rmrc_lean(start.position, 9.0, POSE_SCAN, direction=(0, 0, 0))
     with pytest.raises(UnreachableError, match="z-stage did not reach"):
-        f.rmrc_lean(start.position + [30.0, 0, 0], 9.0, fg.POSE_SCAN, max_iter=1, max_step=1.0)
+        f.rmrc_lean(start.position + [30.0, 0, 0], 9.0, POSE_SCAN, max_iter=1, max_step=1.0)
 
 
 def test_follow_holds_the_lean_and_checks_targets():
     f = Finger()
-    start = f.rmrc_lean(f.forward(fg.POSE_SCAN), 9.0, fg.POSE_SCAN)
+    start = f.rmrc_lean(f.forward(POSE_SCAN), 9.0, POSE_SCAN)
     targets = start.position + np.outer(np.linspace(-10.0, 10.0, 5), [1.0, 0.0, 0.0])
     rots, stage = f.follow(targets, start.theta, z0=start.z, lean_deg=9.0)
     assert rots.shape == (5, 3, 3) and stage.shape == (5,)
     np.testing.assert_allclose(np.degrees(np.arcsin(rots[:, 0, 2])), 9.0, atol=1e-6)
-    rots, stage = f.follow(targets[:2] - [0.0, 0.0, 5.0], fg.POSE_SCAN, z0=start.z)  # three joints only
+    rots, stage = f.follow(targets[:2] - [0.0, 0.0, 5.0], POSE_SCAN, z0=start.z)  # three joints only
     assert np.all(stage == start.z)
     with pytest.raises(ShapeError, match="targets"):
-        f.follow(targets[:, :2], fg.POSE_SCAN)
+        f.follow(targets[:, :2], POSE_SCAN)
     with pytest.raises(InputError, match="z0"):
-        f.follow(targets, fg.POSE_SCAN, z0=float("inf"))
+        f.follow(targets, POSE_SCAN, z0=float("inf"))
 
 
 def test_the_finger_package_imports_no_studies_and_no_matplotlib():

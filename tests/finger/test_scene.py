@@ -6,17 +6,19 @@ import numpy as np
 import pytest
 
 import optitact
-import optitact.finger as fg
+from optitact.finger.kinematics import POSE_DOWN, POSE_SCAN
+from optitact.finger.scene import local_from_world, sliding_friction, world_from_local
 from optitact.errors import ShapeError
-from optitact.finger import Box, Cylinder, Finger, Table, feeler_forces
+from optitact.finger.kinematics import Finger
+from optitact.finger.scene import Box, Cylinder, Table, feeler_forces
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 
 
 # ---------------------------------------------------------------------------- contact geometry
 def test_feeler_forces_table_and_walls():
     f = Finger()
-    rot, origin = f.sensor_pose(fg.POSE_DOWN)
+    rot, origin = f.sensor_pose(POSE_DOWN)
     apex_tip = origin + (SENSOR.outer_radius + 1.0) * rot[:, 2]
     local, tips = feeler_forces(SENSOR, rot, origin, [Table(apex_tip[2] + 0.4)], stiffness=0.5)
     np.testing.assert_allclose(tips[0], apex_tip)
@@ -35,7 +37,7 @@ def test_feeler_forces_table_and_walls():
 
 def test_scan_lean_keeps_the_apex_feeler_alone_on_the_specimen():
     f = Finger()
-    r = f.rmrc_lean(f.forward(fg.POSE_SCAN), 9.0, fg.POSE_SCAN)
+    r = f.rmrc_lean(f.forward(POSE_SCAN), 9.0, POSE_SCAN)
     rot, origin = f.sensor_pose(r.theta, z=r.z)
     tips = origin + ((SENSOR.outer_radius + 1.0) * SENSOR.element_frames[:, 2, :]) @ rot.T
     height = np.sort(tips[:, 2] - tips[0, 2])
@@ -48,8 +50,8 @@ def test_scan_lean_keeps_the_apex_feeler_alone_on_the_specimen():
 
 
 def test_sliding_friction_mild_speed_dependence():
-    assert fg.sliding_friction(0.4, 6.2) == pytest.approx(0.4)
-    lo, hi = fg.sliding_friction(0.4, 1.4), fg.sliding_friction(0.4, 25.0)
+    assert sliding_friction(0.4, 6.2) == pytest.approx(0.4)
+    lo, hi = sliding_friction(0.4, 1.4), sliding_friction(0.4, 25.0)
     assert 0.39 < lo < 0.4 < hi < 0.41
 
 
@@ -58,12 +60,12 @@ def test_world_and_local_forces_round_trip():
     f = Finger()
     rots = np.stack([f.sensor_pose(th)[0] for th in rng.uniform(-1.0, 1.0, (4, 3))])
     local = rng.normal(0.0, 0.3, (4, SENSOR.n_elements, 3))
-    world = fg.world_from_local(SENSOR, local, rots)
+    world = world_from_local(SENSOR, local, rots)
     # direct: F_world = R frames_i^T (Fx, Fy, -Fz)
     direct = np.einsum("tij,nkj,tnk->tni", rots, SENSOR.element_frames, local * [1.0, 1.0, -1.0])
     np.testing.assert_allclose(world, direct, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(fg.local_from_world(SENSOR, world, rots), local, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(local_from_world(SENSOR, world, rots), local, rtol=0, atol=1e-12)
     with pytest.raises(ShapeError, match="rotations"):
-        fg.world_from_local(SENSOR, local, rots[:2])
+        world_from_local(SENSOR, local, rots[:2])
     with pytest.raises(ShapeError, match="forces"):
-        fg.world_from_local(SENSOR, local[0], rots)
+        world_from_local(SENSOR, local[0], rots)

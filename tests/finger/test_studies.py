@@ -11,16 +11,17 @@ import pytest
 import optitact
 from optitact import studies
 from optitact.errors import InputError
-from optitact.finger import ChainEstimate, ChainSimulator, Finger
-from optitact.io import atomic_write_png_figure
-from optitact.studies import finger_contour, finger_scanning, finger_slip
+from optitact.finger.chain import ChainEstimate, ChainSimulator
+from optitact.finger.kinematics import Finger
+from optitact.io.files import atomic_write_png_figure
 from optitact.studies import finger as finger_study
+from optitact.studies import finger_contour, finger_scanning, finger_slip
 from optitact.studies.finger_contour import _trace_one as trace_one
 from optitact.studies.finger_contour import contour_tracing, joint_error_study
 from optitact.studies.finger_scanning import surface_scanning
 from optitact.studies.finger_slip import slip_experiment
 
-SENSOR = optitact.DomeSensor.default()
+SENSOR = optitact.optics.sensor.DomeSensor.default()
 
 
 def _png(draw, result, path, figsize=(12, 8)):
@@ -37,7 +38,7 @@ class PerfectChain(ChainSimulator):
     """The chain's interface with the simulated forces plus 2 mN noise: tests the experiments' logic."""
 
     def __init__(self, noise=0.002):
-        self.sensor, self.camera, self.noise = SENSOR, optitact.FisheyeCamera(), noise
+        self.sensor, self.camera, self.noise = SENSOR, optitact.optics.camera.FisheyeCamera(), noise
 
     def describe(self):
         return {"perfect": True}
@@ -96,7 +97,7 @@ def test_first_approach_goes_on_until_it_touches(monkeypatch):
     # starting 8 mm clear is more than one square-search side (retreat 2 + step 5 mm)
     opts = dict(step=5.0, approach_step=1.0, retreat=2.0, contact_threshold=0.3, table_threshold=0.2, lift=5.0,
                 stiffness=0.5, feeler_height=1.0, max_frames=80, corner_margin=5.0)
-    box = optitact.finger.Box(center=(188.0, 0.0), size=(40.0, 40.0), angle_deg=45.0)
+    box = optitact.finger.scene.Box(center=(188.0, 0.0), size=(40.0, 40.0), angle_deg=45.0)
     r = trace_one(box, PerfectChain(), Finger(), start_y=-8.0, end_y=8.0, first_index=0, gap=8.0, **opts)
     assert not r["lost"] and r["reached_end"] and r["n_contacts"] >= 4
     start = finger_contour._start_point

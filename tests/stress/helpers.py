@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact.camera import FisheyeCamera
-from optitact.pipeline import G_MIN, Pipeline
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.imageops import G_MIN
+from optitact.pipeline.readings import Readings
 
 SENSOR = DomeSensor.default()
 #: The camera of the stress cases: small, so that thousands of frames run in a minute.

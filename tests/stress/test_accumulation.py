@@ -9,10 +9,12 @@ import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from optitact.camera import FisheyeCamera
-from optitact.io import ReadingsWriter
-from optitact.pipeline import CHUNK_FRAMES, Pipeline, estimate_noise
-from optitact.readings import Readings
+from optitact.io.tables import ReadingsWriter
+from optitact.optics.camera import FisheyeCamera
+from optitact.pipeline.fastpath import CHUNK_FRAMES
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.imageops import estimate_noise
+from optitact.pipeline.readings import Readings
 
 from .helpers import N_EL, SENSOR, SMALL, assert_same
 from .strategies import counted, rng_of, seeds, stress

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import strategies as st
 
-from optitact.ccd import CCD, MAX_FULL_WELL
 from optitact.errors import InputError, ShapeError
+from optitact.optics.ccd import CCD, MAX_FULL_WELL
 
 from .strategies import counted, rng_of, seeds, stress
 

@@ -9,12 +9,13 @@ import re
 import numpy as np
 import pytest
 from hypothesis import strategies as st
+from optitact.calib.document import CalibrationMismatchError
+from optitact.calib.fit import Calibration
 
-from optitact.calib import Calibration, CalibrationMismatchError
-from optitact.camera import FisheyeCamera
 from optitact.errors import InputError, OptitactWarning
-from optitact.readings import Readings
-from optitact.sensor import DomeSensor
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.sensor import DomeSensor
+from optitact.pipeline.readings import Readings
 
 from .helpers import LONE, SMALL, Touch, coupled_set
 from .strategies import counted, rng_of, seeds, stress
@@ -188,7 +189,7 @@ def test_calibration_files_of_schema_version_1_load_as_version_1(cal_doc, tmp_pa
 
 @counted("calibration_file")
 def test_oversized_calibration_files_are_refused(cal_doc, tmp_path):
-    from optitact.calib.fit import MAX_FILE_BYTES
+    from optitact.calib.document import MAX_FILE_BYTES
 
     text = json.dumps(cal_doc[1])
     path = tmp_path / "c.json"

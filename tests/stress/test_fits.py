@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 from hypothesis import strategies as st
+from optitact.calib.curves import EXTRAPOLATE
+from optitact.calib.fit import Calibration
 
-from optitact.calib import Calibration
-from optitact.calib.fit import EXTRAPOLATE
 from optitact.errors import InputError, ShapeError
-from optitact.readings import Readings
+from optitact.pipeline.readings import Readings
 
 from .helpers import LONE, SMALL, coupled_set
 from .strategies import counted, rng_of, seeds, stress

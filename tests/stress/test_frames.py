@@ -10,7 +10,8 @@ import pytest
 from hypothesis import strategies as st
 
 from optitact.errors import InputError, ShapeError
-from optitact.pipeline import G_MIN, MAX_GREY, Pipeline, estimate_noise
+from optitact.pipeline.frame_pipeline import Pipeline
+from optitact.pipeline.imageops import G_MIN, MAX_GREY, estimate_noise
 
 from .helpers import FLOAT_DTYPES, INT_DTYPES, N_EL, SENSOR, SMALL, H, W, as_dtype, assert_same, assert_sane
 from .strategies import counted, rng_of, seeds, stress

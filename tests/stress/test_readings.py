@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from optitact.pipeline import G_MIN, readings_from_moments
+from optitact.pipeline.imageops import G_MIN, readings_from_moments
 
 from .helpers import N_EL, SMALL, assert_same, assert_sane, spot_tolerance
 from .strategies import counted, rng_of, seeds, stress

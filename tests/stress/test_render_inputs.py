@@ -9,9 +9,9 @@ import pytest
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from optitact.camera import FisheyeCamera
-from optitact.contact import MAX_FORCE_N, check_forces, contact_patches
 from optitact.errors import InputError, ShapeError
+from optitact.optics.camera import FisheyeCamera
+from optitact.optics.contact import MAX_FORCE_N, check_forces, contact_patches
 
 from .helpers import N_EL, SENSOR, no_mitsuba
 from .strategies import counted, rng_of, seeds, stress

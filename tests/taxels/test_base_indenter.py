@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError
-from optitact.sources import Indenter, Scenario
 from optitact.taxels import base
 from optitact.taxels.base import TaxelSource, check_config, check_scenario, fraction, range_pair
 from optitact.taxels.indenter import overlap, surface_height
+from optitact.taxels.sources import Indenter, Scenario
 
 
 def test_fraction_and_range_pair():
@@ -117,7 +117,7 @@ def test_bent_wire_and_overlap():
 
 
 def test_taxels_import_no_optional_dependency_and_no_study():
-    code = ("import sys, optitact.taxels, optitact.sources as s\n"
+    code = ("import sys, optitact.taxels, optitact.taxels.sources as s\n"
             "s.make_source('piezo16'), s.make_source('thread8')\n"
             "import optitact.taxels.combined, optitact.taxels.grasp, optitact.taxels.dtw\n"
             "heavy = ('sklearn', 'dtaidistance', 'matplotlib')\n"

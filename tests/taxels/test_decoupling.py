@@ -5,10 +5,16 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter, Scenario
-from optitact.taxels.decoupling import (DecouplingMatrix, axis_ranges, decouple, detection_ranges,
-                                        plane_resultants, repeatability_error)
+from optitact.taxels.decoupling import (
+    DecouplingMatrix,
+    axis_ranges,
+    decouple,
+    detection_ranges,
+    plane_resultants,
+    repeatability_error,
+)
 from optitact.taxels.fingertip25 import PLANE_AXIS, UNIT_SIDE, Fingertip25, Fingertip25Config
+from optitact.taxels.sources import Indenter, Scenario
 
 PUBLISHED_ANGLES = (0.0, 77.25, 62.09, 46.47, 9.03)
 PUBLISHED_UNITS = (8, 4, 2, 2, 3)

@@ -7,10 +7,18 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter, Scenario, TactileSource, make_source
 from optitact.studies.fingertip import step_response
-from optitact.taxels.fingertip25 import (PLANE_AXIS, UNIT_PLANE, UNIT_SIDE, Fingertip25, Fingertip25Config,
-                                         force_from_resistance, resistance_from_force, resistance_law)
+from optitact.taxels.fingertip25 import (
+    PLANE_AXIS,
+    UNIT_PLANE,
+    UNIT_SIDE,
+    Fingertip25,
+    Fingertip25Config,
+    force_from_resistance,
+    resistance_from_force,
+    resistance_law,
+)
+from optitact.taxels.sources import Indenter, Scenario, TactileSource, make_source
 
 PUBLISHED_ANGLES = (0.0, 77.25, 62.09, 46.47, 9.03)
 PUBLISHED_UNITS = (8, 4, 2, 2, 3)

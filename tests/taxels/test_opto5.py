@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter, Scenario, TactileSource, make_source
 from optitact.taxels.opto5 import Opto5, Opto5Config, grasp_scenario
+from optitact.taxels.sources import Indenter, Scenario, TactileSource, make_source
 from optitact.taxels.wire import hold_response
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter, Scenario, TactileSource, make_source
 from optitact.taxels.piezo16 import FINGER_PAD_MASK, Piezo16, Piezo16Config, unit_voltage
+from optitact.taxels.sources import Indenter, Scenario, TactileSource, make_source
 
 PITCH = 2.2
 FULL_MASK = ("#" * 16,) * 16

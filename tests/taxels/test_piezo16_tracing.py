@@ -6,10 +6,17 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter, Layout, Scenario
-from optitact.taxels.combined import (WidthClassifier, combined_distribution, diameter_resolution, features,
-                                      pair_separation, radial_line, trace)
+from optitact.taxels.combined import (
+    WidthClassifier,
+    combined_distribution,
+    diameter_resolution,
+    features,
+    pair_separation,
+    radial_line,
+    trace,
+)
 from optitact.taxels.piezo16 import Piezo16, Piezo16Config
+from optitact.taxels.sources import Indenter, Layout, Scenario
 
 PITCH = 2.2
 FULL_MASK = ("#" * 16,) * 16

@@ -9,8 +9,16 @@ import pytest
 from optitact import studies
 from optitact.errors import InputError, ShapeError
 from optitact.studies.fingertip import repeated_loadings
-from optitact.studies.fingertip_objects import (OBJECTS, GraspObject, ObjectDataset, _solve_depth, grasp,
-                                                hidden_units, object_dataset, recognise_objects)
+from optitact.studies.fingertip_objects import (
+    OBJECTS,
+    GraspObject,
+    ObjectDataset,
+    _solve_depth,
+    grasp,
+    hidden_units,
+    object_dataset,
+    recognise_objects,
+)
 from optitact.taxels.decoupling import repeatability_error
 from optitact.taxels.fingertip25 import Fingertip25, Fingertip25Config
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError
-from optitact.sources import Indenter, Scenario, TactileSource, make_source
 from optitact.taxels.grasp import OBJECTS
+from optitact.taxels.sources import Indenter, Scenario, TactileSource, make_source
 from optitact.taxels.thread8 import Thread8, Thread8Config
 
 KP = 100.0  # kPa/mm, default pad: 0.5 MPa / 5 mm

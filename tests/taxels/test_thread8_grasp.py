@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter
 from optitact.taxels.grasp import OBJECTS, GraspProtocol, PalpationObject, frame_features, grasp
+from optitact.taxels.sources import Indenter
 from optitact.taxels.thread8 import Thread8
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError
-from optitact.sources import Indenter, Scenario
 from optitact.taxels.grasp import OBJECTS, GraspProtocol, default_jaws, grasp
+from optitact.taxels.sources import Indenter, Scenario
 from optitact.taxels.thread8 import Thread8, Thread8Config
 
 IDEAL_SENSOR = {"sensor_gain_spread": 0.0, "mount_spread_mm": 0.0, "mount_spread_rad": 0.0}

@@ -5,10 +5,17 @@ import numpy as np
 import pytest
 
 from optitact.errors import InputError, ShapeError
-from optitact.sources import Indenter
 from optitact.taxels.opto5 import Opto5, grasp_scenario
-from optitact.taxels.wire import (LookupTableClassifier, NormalisationLUT, calibration_closure, hold_response,
-                                  remove_offset, wire_centroids, wire_shape)
+from optitact.taxels.sources import Indenter
+from optitact.taxels.wire import (
+    LookupTableClassifier,
+    NormalisationLUT,
+    calibration_closure,
+    hold_response,
+    remove_offset,
+    wire_centroids,
+    wire_shape,
+)
 
 PUBLISHED_ROW = [0.9518, 2.2716, 3.0802, 3.5735, 6.2054, 7.9888]
 DIAMETERS = [1.5, 2.0, 2.5, 3.0, 3.5, 4.0]
