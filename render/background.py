@@ -91,7 +91,7 @@ def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSetti
     nominal frame's resolution and Monte Carlo noise carry over. Measured
     for an 80 x 60 Kannala-Brandt camera 0.36 mm off axis and 1.9 deg tilted
     resampled from a 160 x 120 nominal frame against its own path-traced
-    no-load frame: see ``tests/test_twostage.py``
+    no-load frame: see ``tests/render/test_twostage.py``
     (``test_resampled_background_matches_a_path_traced_one``).
     """
     from optitact.render.cache import cached_render

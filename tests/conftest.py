@@ -14,8 +14,14 @@ import subprocess
 import sys
 
 import pytest
-from _notebook_runner import EARLY_NOTEBOOKS  # tests/ is on sys.path (rootdir conftest)
-from hypothesis import settings
+
+# The tests mirror the package (tests/optics/, tests/pipeline/, ...); a test module may import another's
+# helpers (``from test_frame_pipeline import ...``), so every such folder is on sys.path, as tests/ is.
+sys.path[1:1] = [str(d) for d in sorted(pathlib.Path(__file__).parent.iterdir())
+                 if d.is_dir() and not (d / "__init__.py").exists() and not d.name.startswith((".", "_"))]
+
+from _notebook_runner import EARLY_NOTEBOOKS  # noqa: E402, I001  (tests/ is on sys.path: rootdir conftest)
+from hypothesis import settings  # noqa: E402
 
 # A busy machine is slow, not wrong: no per-example deadline anywhere in the suite.
 settings.register_profile("optitact", deadline=None)

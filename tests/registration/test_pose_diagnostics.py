@@ -1,6 +1,6 @@
 """Registration says when its answer is not to be trusted, and refuses inputs it cannot use (issue 31).
 
-Frames are the stand-ins of ``tests/test_register.py`` (Gaussian spots drawn at the model's projections of
+Frames are the stand-ins of ``registration/test_pose.py`` (Gaussian spots drawn at the model's projections of
 the cone patch centres, 2 grey levels of noise, uint8), except the gains' frames, which are two-stage
 renders. The command-line tests run the installed ``optitact`` in a fresh folder and cache (the ``user``
 fixture); the frames are written there as .png / .npy first.
@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_register import NOMINAL, PRESSES, SENSOR, H, W, _spot, frames, pose_error, standin
+from test_pose import NOMINAL, PRESSES, SENSOR, H, W, _spot, frames, pose_error, standin
 
 from optitact.errors import InputError, KindError
 from optitact.optics.camera_models import PinholeCamera

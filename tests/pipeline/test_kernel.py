@@ -1,7 +1,7 @@
 """The fast method's two kernels (pipeline.kernel): numba and the NumPy fallback give the same readings.
 
 Truth is the NumPy path (``np.bincount`` over gathered entries, itself checked against the
-reference steps in test_pipeline.py): the compiled pass must match it bit for bit (array_equal)
+reference steps in test_frame_pipeline.py): the compiled pass must match it bit for bit (array_equal)
 on random integer frames with spots, on the pipeline tests' analytic frames, for every frame dtype;
 threaded batches must equal serial ones. Without numba, ``"auto"`` falls back and ``"numba"``
 names the extra to install.
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import test_pipeline
+import test_frame_pipeline as test_pipeline
 
 import optitact
 from optitact.errors import InputError, OptitactWarning
@@ -102,7 +102,7 @@ def test_numba_equals_numpy_at_the_threshold(base, thr, dtype):
 
 @needs_numba
 def test_numba_equals_numpy_on_the_pipeline_tests_frames(noisy_scene):
-    """The analytic spot frames of test_pipeline (41 spots, structured background, noise), uint8 and float64."""
+    """The pipeline tests' analytic spot frames (41 spots, structured background, noise), uint8 and float64."""
     frame, base = noisy_scene
     for dtype in (np.uint8, np.float64):
         cast = lambda a, d=dtype: np.asarray(a, d)  # noqa: E731

@@ -2,7 +2,7 @@
 
 ``fit_presses(start=...)`` tries per element a gain, a shear scale and a centroid shift, each kept only
 where it beats what the element had on held-out presses (k-fold over the element's presses). Fast
-tests use readings made by inverting known curves (``tests/test_presses.py``): presses made by the
+tests use readings made by inverting known curves (``tests/calib/test_press_fit.py``): presses made by the
 start itself (nothing to gain: the noise would only hurt), and by a sensor whose brightness really
 differs (the gain must be kept). An outside-in test runs ``optitact calibrate fit --start default``
 and ``calibrate test`` on rendered frames.
@@ -21,7 +21,7 @@ from optitact.calib.fit import Calibration
 from optitact.calib.held_out import press_report
 from optitact.calib.press_fit import GROUPS, MIN_PRESSES_TO_TELL, fit_presses
 from optitact.calib.shipped import default_calibration
-from test_presses import N_EL, SENSOR, gauge, protocol_forces, readings_of  # tests/ is on sys.path
+from test_press_fit import N_EL, SENSOR, gauge, protocol_forces, readings_of  # tests/ is on sys.path
 
 from optitact.errors import OptitactWarning
 from optitact.pipeline.readings import Readings

@@ -11,8 +11,8 @@ import threading
 import cv2
 import numpy as np
 import pytest
-import test_process_cli
-from test_process_cli import CAM, SENSOR, SPOTS, read_csv, spot_frame
+import test_process as test_process_cli
+from test_process import CAM, SENSOR, SPOTS, read_csv, spot_frame
 
 import optitact
 import optitact.live.stream as live
