@@ -234,7 +234,7 @@ def _refine(cal, ct: CrossTalk, readings, forces: np.ndarray, sensor: DomeSensor
     ring = sensor.element_ring[e_idx]
     n_rings = len(sensor.ring_counts)
     g0 = readings.G[t_idx, e_idx] / cal.g_scale[e_idx]
-    tt = (cal._clamped_shift(readings.u)[0] / cal.u_scale[:, None])[t_idx, e_idx]  # (n, 2)
+    tt = (cal.clamped_shift(readings.u)[0] / cal.u_scale[:, None])[t_idx, e_idx]  # (n, 2)
     target = fz[t_idx, e_idx]
     coupled = bool(np.any(cal.gu))
     free = np.zeros((n_rings, n_rings + 1), bool)

@@ -69,10 +69,8 @@ def g_design(s: np.ndarray) -> np.ndarray:
 #: Above an element's fitted range (``G > g_max``) its normal curve goes on along its tangent at
 #: ``g_max`` up to this fraction beyond it, and holds there (the reading is flagged ``clamped``).
 #: A loaded element whose neighbours are not (a single touch) reads brighter than any calibration
-#: frame that loaded it as hard with as much shear: held flat at ``g_max``, the accuracy bench's
-#: estimates of such readings (1.7 % of the held-out samples, all within a tenth of ``g_max``)
-#: erred by 24-34 mN (RMS, three families), along the tangent by 13-19 mN (the single family's Fz
-#: RMSE 0.88 -> 0.76 % FS; the uniform family's clamped readings, 4 mN off flat, 10 mN).
+#: frame that loaded it as hard with as much shear; such readings lie just above the range, where
+#: the tangent follows the curve better than a flat hold (figures in docs/results/accuracy.md).
 EXTRAPOLATE = 0.25
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact._validate import check_keys, check_type
+from optitact._validate import check_keys, check_type, json_numbers
 from optitact.optics.camera import Camera, camera_from_dict
 from optitact.optics.ccd import IntensityScale
 from optitact.errors import InputError, OptitactWarning
@@ -35,8 +35,8 @@ from optitact.optics.sensor import DomeSensor
 from optitact.calib.curves import FZ_FLOOR, G_TERMS, MODELS, g_design
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "READ_VERSIONS", "MAX_FILE_BYTES", "PIPELINE_KEYS",
-           "STACK_NOISE_UNNAMED", "CalibrationMismatchError", "fingerprint", "from_document", "numbers",
-           "read_document"]
+           "STACK_NOISE_UNNAMED", "CalibrationMismatchError", "fingerprint", "from_document", "plain_options",
+           "read_document", "resolved_options"]
 
 SCHEMA = "optitact.calibration"
 #: The schema version written (see the module docstring for what each version holds).
@@ -64,27 +64,59 @@ def fingerprint(sensor: DomeSensor, camera: Camera, pipeline_options: dict,
     """
     check_type(sensor, DomeSensor, "sensor")
     check_type(camera, Camera, "camera")
-    doc = {"sensor": sensor.to_dict(), "camera": camera.to_dict(), "pipeline": _plain(pipeline_options)}
+    doc = {"sensor": sensor.to_dict(), "camera": camera.to_dict(), "pipeline": plain_options(pipeline_options)}
     if intensity is not None and check_type(intensity, IntensityScale, "intensity") != IntensityScale():
         doc["intensity"] = intensity.to_dict()
     return json_fingerprint(doc, 16)
 
 
-def _plain(options: dict) -> dict:
-    """Pipeline options as plain JSON values (drops None, which means 'default')."""
+def plain_options(options: dict) -> dict:
+    """Pipeline options as a calibration stores them: sorted, without None and without ``baseline``.
+
+    None means "the pipeline's default", so leaving it out keeps the
+    fingerprint of options given with and without it the same; the baseline
+    is a frame, not an option of the curves.
+
+    Parameters
+    ----------
+    options : dict
+        Keyword options of :class:`~optitact.pipeline.frame_pipeline.Pipeline`.
+
+    Returns
+    -------
+    dict
+    """
     return {k: v for k, v in sorted(options.items()) if v is not None and k != "baseline"}
 
 
-def _resolved(sensor: DomeSensor, camera: Camera, options: dict) -> dict:
-    """Pipeline options with the region geometry made explicit.
+def resolved_options(sensor: DomeSensor, camera: Camera, options: dict) -> dict:
+    """Pipeline options (:func:`plain_options`) with the region geometry made explicit.
 
     The default region radius and dewarp cell size are derived from the
     sensor and camera; storing the values used keeps a calibration valid
     even if a later version derives other defaults.
+
+    Parameters
+    ----------
+    sensor : DomeSensor
+    camera : Camera
+    options : dict
+        Keyword options of :class:`~optitact.pipeline.frame_pipeline.Pipeline`.
+
+    Returns
+    -------
+    dict
+        ``plain_options(options)`` with ``radius`` and ``grid_mm`` as the
+        pipeline built from them uses.
+
+    Raises
+    ------
+    InputError, TypeError
+        Options that build no pipeline for ``sensor`` and ``camera``.
     """
     from optitact.pipeline.frame_pipeline import Pipeline
 
-    plain = _plain(options)
+    plain = plain_options(options)
     pipe = Pipeline(sensor, camera, **plain)
     return plain | {"radius": pipe.grids.radius, "grid_mm": pipe.grids.grid_mm}
 
@@ -168,7 +200,7 @@ def from_document(cls, d, *, source: str | os.PathLike | None = None):
         if not isinstance(d.get(key, {}), dict):
             raise InputError(f"calibration {key!r} must be an object, got "
                              f"{type(d[key]).__name__}")
-    residuals = {key: numbers(value, f"calibration residuals_n[{key!r}]")
+    residuals = {key: json_numbers(value, f"calibration residuals_n[{key!r}]")
                  for key, value in d.get("residuals_n", {}).items()}
     if "n" in residuals:  # sample counts: integers, as a fit makes them (and writes them back)
         count = residuals["n"]
@@ -188,7 +220,7 @@ def from_document(cls, d, *, source: str | os.PathLike | None = None):
     def arr(name, shape):
         if name not in el:
             raise InputError(f"calibration elements are missing {name!r}")
-        a = numbers(el[name], f"calibration elements[{name!r}]")
+        a = json_numbers(el[name], f"calibration elements[{name!r}]")
         if a.shape != shape:
             raise InputError(f"calibration elements[{name!r}] must have shape {shape}, "
                              f"got {a.shape}")
@@ -266,30 +298,6 @@ def _crosstalk(value, sensor: DomeSensor):
     ct = CrossTalk.from_dict(value)
     ct.matrix(sensor)  # InputError unless one row per ring
     return ct
-
-
-def numbers(value, what: str) -> np.ndarray:
-    """A nested list of JSON numbers as a float64 array; InputError naming ``what`` otherwise.
-
-    Strings ("0.99"), booleans, nulls and objects are refused (NumPy would
-    convert the first two), and so are values that are not finite in float64
-    (1e309 parses as infinity; integers beyond float64 overflow).
-    """
-    stack = [value]
-    while stack:
-        item = stack.pop()
-        if isinstance(item, list):
-            stack.extend(item)
-        elif isinstance(item, bool) or not isinstance(item, (int, float)):
-            raise InputError(f"{what} must hold numbers, got {item!r} ({type(item).__name__})")
-    try:
-        a = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError, ArithmeticError):  # ragged lists; ints beyond float64 overflow
-        raise InputError(f"{what} must be a regular array of numbers within float64") from None
-    if not np.isfinite(a).all():
-        raise InputError(f"{what} must be finite, got {a[~np.isfinite(a)].flat[0]} (JSON numbers beyond "
-                         f"float64, such as 1e309, read as infinity)")
-    return a
 
 
 def _refuse_constant(name: str):

@@ -14,9 +14,7 @@ per axis, as a floor plus parts that grow with the load,
 likelihood of held-out validation frames: see :meth:`ErrorModel.fit`; the
 last, second order in the shear, for Fz only: :data:`QUADRATIC_SHEAR`),
 times a scale per ring of elements and axis (the camera sees the rings at
-different angles, and the curves fit the outer ones worse: fitted on the
-accuracy bench's validation frames, the shipped calibration's scales are
-0.47-0.83 on the apex and first ring and 1.14-1.37 on the outer ring),
+different angles, and the curves fit the outer ones worse),
 
 fitted by maximum likelihood to the residuals beside the noise the readings
 carried (their propagated standard errors), so that noise is not counted
@@ -31,6 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from optitact._validate import json_numbers
 from optitact.errors import InputError, ShapeError
 
 __all__ = ["MIN_GROUP_SAMPLES", "MIN_SAMPLES", "QUADRATIC_SHEAR", "ErrorModel", "validate"]
@@ -42,18 +41,11 @@ _AXES = ("fx", "fy", "fz")
 
 #: Axes (Fx, Fy, Fz) whose error model has the part of second order in the shear, ``shear2 Ft^2``.
 #: The coupled curves give Fz a term linear in the centroid shift, so what they leave of G's
-#: dependence on the shear is of second order; Fx and Fy are the curves f(u) themselves, whose
-#: error grows with the shear they read. On the accuracy bench's 60 path-traced validation frames
-#: the Fz error beyond the noise was 0-5 mN below Ft = 0.25 N and 12-17 mN above it, where the
-#: linear part alone set 8 mN at 0.2 N: it widened the intervals of every sheared element to
-#: cover the few most sheared (the single, checkerboard and shear families' Fz intervals held
-#: 0.94, 0.93 and 0.95 of the true forces); with the quadratic part the held-out families'
-#: log-likelihood in Fz rose by 63 and those fractions fell to 0.93, 0.92 and 0.93. For Fx and Fy
-#: it would move their shear part to the few most sheared elements and leave the clustered family
-#: (little shear) at 0.875-0.88, so they have none. Much of that second-order error was readings
-#: above the fitted range, then held flat at ``g_max``: along the curve's tangent
-#: (:data:`optitact.calib.curves.EXTRAPOLATE`) the fit gives the bench's joint model 0.09 N per N^2,
-#: was 0.18, and the shipped calibration 0 (its linear part took what is left).
+#: dependence on the shear is of second order: without this part the linear one widens the intervals
+#: of every sheared element to cover the few most sheared. Fx and Fy are the curves f(u) themselves,
+#: whose error grows with the shear they read: for them it would take the linear part's place on the
+#: most sheared elements and leave the intervals of little-sheared ones too narrow, so they have none.
+#: The held-out figures that chose this: docs/results/accuracy.md.
 QUADRATIC_SHEAR = (False, False, True)
 
 #: A group of elements (a ring) with fewer loaded samples than this gets no scale of its own: the
@@ -208,16 +200,10 @@ class ErrorModel:
         mean square of 1 over the samples. Starting from the residuals'
         variance split evenly and every ``k`` 1, the fit is deterministic.
 
-        Every part is there because the held-out likelihood chose it, on the
-        accuracy bench's 60 path-traced validation frames (ten of each load
-        family), by five-fold cross-validation by frames: the shear part
-        gave a negative log-likelihood of -23,316 against -23,230 without (a
-        part in each element's neighbours' load contrast or mean load
-        changed it by under 2); the scale per ring -19,396 against -19,208
-        without (Fx / Fy / Fz 42 / 136 / 9 better) with the joint model's
-        noise beside the residuals. A scale per element was better still for
-        Fx and Fy (by 44 and 39) but worse for Fz (by 31), and a sensor's own
-        presses give few samples per element: rings it is.
+        Every part is there because the held-out likelihood chose it (five-fold
+        cross-validation by frames of the accuracy bench's validation frames;
+        the figures are in docs/results/accuracy.md). The scale is per ring,
+        not per element: a sensor's own presses give few samples per element.
         """
         from scipy.optimize import minimize
 
@@ -291,19 +277,18 @@ class ErrorModel:
         """Build from :meth:`to_dict` output; InputError for a malformed one."""
         if not isinstance(d, dict) or not all(k in d for k in ("floor_n", "relative", "samples")):
             raise InputError("calibration 'error_model' must be an object with floor_n, relative and samples")
-        from optitact.calib.document import numbers
 
         def part(name):  # files written before a part was added have none
             return (0.0, 0.0, 0.0) if d.get(name) is None else \
-                numbers([d[name][a] for a in _AXES], f"calibration error_model[{name!r}]")
+                json_numbers([d[name][a] for a in _AXES], f"calibration error_model[{name!r}]")
 
         try:
             scale = d.get("element_scale")  # files written before the scales have none
             if scale is not None:
-                scale = np.stack([numbers(scale[a], f"calibration error_model['element_scale'][{a!r}]")
+                scale = np.stack([json_numbers(scale[a], f"calibration error_model['element_scale'][{a!r}]")
                                   for a in _AXES], axis=1)
-            return cls(numbers([d["floor_n"][a] for a in _AXES], "calibration error_model['floor_n']"),
-                       numbers([d["relative"][a] for a in _AXES], "calibration error_model['relative']"),
+            return cls(json_numbers([d["floor_n"][a] for a in _AXES], "calibration error_model['floor_n']"),
+                       json_numbers([d["relative"][a] for a in _AXES], "calibration error_model['relative']"),
                        d["samples"], d.get("source", ""), shear=part("shear"), shear2=part("shear2"),
                        element_scale=scale)
         except (KeyError, TypeError, ValueError) as exc:
@@ -367,7 +352,7 @@ def validate(cal, readings, forces, errors=None, *, source: str = ""):
     """
     from optitact.calib import propagation
 
-    cal._check(readings)
+    cal.check_readings(readings)
     truth = np.asarray(forces, dtype=np.float64)
     if not readings.is_stack or truth.shape != np.shape(readings.G) + (3,):
         raise ShapeError(f"forces must have shape (T, E, 3) = {np.shape(readings.G) + (3,)} for stack "

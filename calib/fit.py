@@ -41,8 +41,8 @@ from optitact.calib.crosstalk import CrossTalk, fit_crosstalk
 from optitact.calib.curves import (G_TERMS, MODELS, fit_element, grey_for_force, normal_force,
                                    zero_shear_centroid)
 from optitact.calib.document import STACK_NOISE_UNNAMED
-from optitact.calib.document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, _resolved, fingerprint,
-                                     from_document, read_document)
+from optitact.calib.document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, fingerprint,
+                                     from_document, read_document, resolved_options)
 from optitact.calib.error_model import ErrorModel, validate
 
 __all__ = ["Calibration", "fit"]
@@ -232,7 +232,7 @@ class Calibration:
             g_scale[e], u_scale[e], g_max[e], u_max[e] = c.g_scale, c.u_scale, c.g_max, c.u_max
             res["fx"][e], res["fy"][e], res["fz"][e], res["n"][e] = c.rms_fx, c.rms_fy, c.rms_fz, c.n
         # the readings' stack-noise rule named (the Pipeline's default where the options do not say)
-        options = {"stack_noise": "pooled"} | _resolved(sensor, camera, pipeline_options or {})
+        options = {"stack_noise": "pooled"} | resolved_options(sensor, camera, pipeline_options or {})
         return cls(model, sensor, camera, options,
                    g_c, g_scale, f_c,
                    u_scale, g_max, u_max, gu, res, dict(provenance or {}), intensity,
@@ -350,7 +350,7 @@ class Calibration:
                     f"{name} {getattr(old, name)}, the new one {getattr(sensor, name)}; the curves are per "
                     f"element, so the element layout must be the same")
         try:
-            options = _resolved(sensor, camera, self.pipeline_options)
+            options = resolved_options(sensor, camera, self.pipeline_options)
         except (InputError, TypeError) as exc:
             raise CalibrationMismatchError(
                 f"cannot transfer this calibration (fingerprint {self.fingerprint}): its pipeline options "
@@ -372,31 +372,32 @@ class Calibration:
             normal curve's tangent continued up to :data:`EXTRAPOLATE`
             beyond it, then held) or ``|u|`` beyond ``u_max`` (clamped to it).
         """
-        self._check(readings)
+        self.check_readings(readings)
         G = readings.G
         if self.crosstalk is not None:  # every element's G as it would read alone, then the curves
-            G = self.crosstalk.solve(self.sensor, G, readings.contact, self._normal_curve(readings.u))
-        out, clamped = self._per_element(G, readings.u)
+            G = self.crosstalk.solve(self.sensor, G, readings.contact, self.normal_curve(readings.u))
+        out, clamped = self.per_element_forces(G, readings.u)
         out[~readings.contact] = 0.0
         return out, clamped & readings.contact
 
-    def _normal_curve(self, u):
-        """``G -> Fz`` of every element on its own at shifts ``u`` (the joint inversion's inner step)."""
-        q = np.sum(self._clamped_shift(u)[0] / self.u_scale[:, None] * self.gu, axis=-1)
-        return lambda G: normal_force(self.g, self.g_scale, self.g_max, G, q)
+    # ------------------------------------------------------------------ the curves, element by element
+    def check_readings(self, readings: Readings) -> None:
+        """Refuse readings these curves cannot be applied to.
 
-    def _clamped_shift(self, u) -> tuple[np.ndarray, np.ndarray]:
-        """``u`` (..., E, 2) clamped to the fitted range ``|u| <= u_max``, and where it was beyond it."""
-        radius = np.hypot(u[..., 0], u[..., 1])
-        over = radius > self.u_max
-        # Divide only where the centroid is clamped (radius > u_max >= 0): elsewhere a subnormal radius
-        # would overflow the quotient that np.where then discards.
-        scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
-                          where=over)
-        return u * scale[..., None], over
+        Parameters
+        ----------
+        readings : Readings
+            Single-frame ``(E,)`` or stack ``(T, E)`` readings.
 
-    def _check(self, readings: Readings) -> None:
-        """TypeError, ShapeError or InputError unless ``readings`` are finite Readings of this sensor."""
+        Raises
+        ------
+        TypeError
+            ``readings`` is not a :class:`~optitact.pipeline.readings.Readings`.
+        ShapeError
+            Another number of elements than the calibration's.
+        InputError
+            Readings that are not finite.
+        """
         if not isinstance(readings, Readings):
             raise TypeError(f"readings must be Readings, got {type(readings).__name__}")
         if readings.n_elements != len(self.g):
@@ -404,9 +405,28 @@ class Calibration:
                              f"{len(self.g)}")
         _check_readings(readings)
 
-    def _per_element(self, G, u) -> tuple[np.ndarray, np.ndarray]:
-        """Forces (..., E, 3) and clamp flags of every element on its own (contact not applied)."""
-        u, over_u = self._clamped_shift(u)
+    def per_element_forces(self, G, u) -> tuple[np.ndarray, np.ndarray]:
+        """Every element's own curves at ``(G, u)``: forces and clamp flags, with no cross-talk or contact.
+
+        :meth:`forces` is this at the readings' G (the cross-talk undone
+        first, when the calibration has one), zeroed where there is no
+        contact; the propagation of errors differentiates it.
+
+        Parameters
+        ----------
+        G : (..., E) array_like
+            Grey-value integrals of the elements (as each would read alone).
+        u : (..., E, 2) array_like
+            Their centroid shifts, mm.
+
+        Returns
+        -------
+        forces : (..., E, 3) ndarray
+            Element-local forces, N.
+        clamped : (..., E) bool ndarray
+            G above ``g_max`` or ``|u|`` beyond ``u_max`` (see :meth:`forces`).
+        """
+        u, over_u = self.clamped_shift(u)
         clamped = (G > self.g_max) | over_u
         t = u / self.u_scale[:, None]
         fz = normal_force(self.g, self.g_scale, self.g_max, G, np.sum(t * self.gu, axis=-1))
@@ -417,6 +437,49 @@ class Calibration:
                 u = u - zero_shear_centroid(self.u0, fz)
             shear = u * (fz / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fz)))[..., None]
         return np.concatenate([shear, fz[..., None]], axis=-1), clamped
+
+    def normal_curve(self, u):
+        """Every element's normal curve ``G -> Fz`` on its own, at centroid shifts ``u``.
+
+        The joint inversion's inner step
+        (:meth:`optitact.calib.crosstalk.CrossTalk.solve`): with the shifts
+        held, Fz depends on G alone.
+
+        Parameters
+        ----------
+        u : (..., E, 2) array_like
+            Centroid shifts, mm (clamped to the fitted range, see :meth:`clamped_shift`).
+
+        Returns
+        -------
+        callable
+            ``G (..., E) -> Fz (..., E)`` (N), the Fz of :meth:`per_element_forces`.
+        """
+        q = np.sum(self.clamped_shift(u)[0] / self.u_scale[:, None] * self.gu, axis=-1)
+        return lambda G: normal_force(self.g, self.g_scale, self.g_max, G, q)
+
+    def clamped_shift(self, u) -> tuple[np.ndarray, np.ndarray]:
+        """Centroid shifts held to the fitted range ``|u| <= u_max``, as the curves read them.
+
+        Parameters
+        ----------
+        u : (..., E, 2) array_like
+            Centroid shifts, mm.
+
+        Returns
+        -------
+        shift : (..., E, 2) ndarray
+            ``u``, scaled back onto ``|u| = u_max`` where it is beyond it (its direction kept).
+        beyond : (..., E) bool ndarray
+            Where it was.
+        """
+        radius = np.hypot(u[..., 0], u[..., 1])
+        over = radius > self.u_max
+        # Divide only where the centroid is clamped (radius > u_max >= 0): elsewhere a subnormal radius
+        # would overflow the quotient that np.where then discards.
+        scale = np.divide(np.broadcast_to(self.u_max, radius.shape), radius, out=np.ones_like(radius),
+                          where=over)
+        return u * scale[..., None], over
 
     # ------------------------------------------------------------------ uncertainty
     def jacobian(self, readings: Readings) -> np.ndarray:

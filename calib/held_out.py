@@ -148,7 +148,7 @@ def press_curve(readings: Readings, forces, test_readings: Readings, test_forces
         report's ``rmse_pct_fs`` and ``rmse_n``, or ``{"refused": message}``
         where the fit is refused (from scratch below ``MIN_PRESSES_SCRATCH``).
     """
-    from optitact.calib.document import _plain
+    from optitact.calib.document import plain_options
 
     f = np.asarray(forces, dtype=np.float64)
     pressed = np.any(f != 0, axis=-1) if pressed is None else np.asarray(pressed, dtype=bool)
@@ -158,7 +158,7 @@ def press_curve(readings: Readings, forces, test_readings: Readings, test_forces
     start = starting_calibration(start)
     out: dict = {"ns": [int(n) for n in ns], "scratch": [], "refined": [],
                  "pool_presses_per_element_min": int(have.min())}
-    options = _plain(pipeline_options or {})
+    options = plain_options(pipeline_options or {})
     for n in ns:
         n = integer(n, "ns", minimum=1)
         if n > have.min():

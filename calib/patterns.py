@@ -5,7 +5,9 @@ actually loads the sensor: one object pressing a cluster of elements, a flat
 plate loading all of them alike, a single element touched, sliding with shear
 in one direction. Each family here draws element-local forces ``(T, E, 3)``
 (N) for a :class:`~optitact.calib.sets.Design` (its ``fz_max``,
-``shear_max`` and ``mu_max`` bound every load), seeded:
+``shear_max`` and ``mu_max`` bound every load), seeded;
+:func:`design_forces` draws a calibration set's forces from its design's
+pattern:
 
 ``independent``
     Every element its own random load (a scrambled Sobol design over normal
@@ -45,7 +47,7 @@ from optitact._validate import integer
 from optitact.errors import InputError
 from optitact.optics.sensor import DomeSensor
 
-__all__ = ["PATTERNS", "FAMILIES", "pattern_forces"]
+__all__ = ["PATTERNS", "FAMILIES", "design_forces", "pattern_forces"]
 
 #: The load-pattern families of held-out tests (``blend`` mixes them for a calibration design).
 FAMILIES = ("independent", "uniform", "single", "clustered", "checkerboard", "shear")
@@ -74,13 +76,76 @@ def _colouring(sensor: DomeSensor) -> np.ndarray:
     return (pos + ring) % 2
 
 
+def design_forces(n_frames: int, n_elements: int, design, seed: int,
+                  sensor: DomeSensor | None = None) -> np.ndarray:
+    """Element-local forces ``(n_frames, n_elements, 3)`` (N) of a calibration set of ``design``.
+
+    ``design`` is a :class:`~optitact.calib.sets.Design`. One of another
+    ``pattern`` than ``"independent"`` is drawn by :func:`pattern_forces` on
+    ``sensor`` (default the default sensor).
+
+    Notes
+    -----
+    The ``"independent"`` design:
+
+    * Sobol frames: a scrambled Sobol sequence (seeded) of
+      ``(u1, u2, u3)`` per element sample gives ``Fz = fz_max u1``, shear
+      magnitude ``min(mu_max Fz, shear_max) sqrt(u2)`` (uniform over the
+      allowed disc) and direction ``2 pi u3``.
+    * Normal sweep frames: ``Fz`` on an even grid over ``(0, fz_max]``,
+      shuffled over elements, no shear.
+    * Shear sweep frames: ``Fz = fz_max / 2``, shear along +-x or +-y with
+      magnitudes on an even grid up to the limit.
+    """
+    if design.pattern != "independent":
+        sensor = DomeSensor.default() if sensor is None else sensor
+        if sensor.n_elements != n_elements:
+            raise InputError(f"n_elements ({n_elements}) is not the sensor's ({sensor.n_elements})")
+        return pattern_forces(design.pattern, n_frames, sensor, design, seed)
+    return _independent(integer(n_frames, "frames", minimum=1), n_elements, design, seed)
+
+
+def _independent(n_frames: int, n_elements: int, design, seed: int) -> np.ndarray:
+    """The ``independent`` design's forces (see :func:`design_forces`)."""
+    from scipy.stats import qmc
+
+    rng = np.random.default_rng([seed, 1])
+    n_sweep = int(round(design.sweep_fraction * n_frames))
+    n_normal = n_sweep // 2
+    n_shear = n_sweep - n_normal
+    n_sobol = n_frames - n_sweep
+    out = np.zeros((n_frames, n_elements, 3))
+    if n_sobol:
+        sob = qmc.Sobol(3, scramble=True, seed=np.random.default_rng([seed, 0]))
+        m = math.ceil(math.log2(max(n_sobol * n_elements, 2)))
+        u = sob.random_base2(m)[: n_sobol * n_elements].reshape(n_sobol, n_elements, 3)
+        fz = design.fz_max * u[..., 0]
+        mag = np.minimum(design.mu_max * fz, design.shear_max) * np.sqrt(u[..., 1])
+        ang = 2 * np.pi * u[..., 2]
+        out[:n_sobol] = np.stack([mag * np.cos(ang), mag * np.sin(ang), fz], axis=-1)
+    if n_normal:
+        levels = design.fz_max * np.arange(1, n_normal * n_elements + 1) / (n_normal * n_elements)
+        fz = rng.permutation(levels).reshape(n_normal, n_elements)
+        out[n_sobol:n_sobol + n_normal, :, 2] = fz
+    if n_shear:
+        fz = design.fz_max / 2
+        limit = min(design.mu_max * fz, design.shear_max)
+        k = n_shear * n_elements
+        mags = limit * np.arange(1, k + 1) / k
+        dirs = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[np.arange(k) % 4]
+        order = rng.permutation(k)
+        shear = (mags[:, None] * dirs)[order].reshape(n_shear, n_elements, 2)
+        out[n_sobol + n_normal:, :, :2] = shear
+        out[n_sobol + n_normal:, :, 2] = fz
+    return out
+
+
 def pattern_forces(pattern: str, n_frames: int, sensor: DomeSensor, design, seed: int) -> np.ndarray:
     """Element-local forces ``(n_frames, E, 3)`` (N) of a load-pattern family (see the module docstring).
 
-    ``independent`` is :func:`~optitact.calib.sets.design_forces`'s classic
-    design; the others are drawn from ``np.random.default_rng([seed, 2, k])``
-    with ``k`` the family's index, so each family's frames depend only on the
-    seed.
+    ``independent`` is :func:`design_forces`'s classic design; the others
+    are drawn from ``np.random.default_rng([seed, 2, k])`` with ``k`` the
+    family's index, so each family's frames depend only on the seed.
     """
     from optitact.optics.loads import indenter_load
 
@@ -89,11 +154,7 @@ def pattern_forces(pattern: str, n_frames: int, sensor: DomeSensor, design, seed
     n_frames = integer(n_frames, "frames", minimum=1)
     n_el = sensor.n_elements
     if pattern == "independent":
-        from dataclasses import replace
-
-        from optitact.calib.sets import design_forces
-
-        return design_forces(n_frames, n_el, replace(design, pattern="independent"), seed)
+        return _independent(n_frames, n_el, design, seed)
     if pattern == "blend":
         parts = np.array_split(np.arange(n_frames), len(FAMILIES))
         out = np.zeros((n_frames, n_el, 3))

@@ -91,8 +91,8 @@ REFINE_FOLDS = 5
 #: Standard errors by which a group must shorten an element's held-out errors (relative) to be kept, per
 #: group. A gain moves every press of the element along its normal curve, and a real one (a brightness
 #: the registration did not catch) shows in every press; a shear scale or centroid shift shows only in
-#: the sheared part of few presses, where chance improvements are common: at 1 standard error they were
-#: kept on a third of the elements of a start that was already right.
+#: the sheared part of few presses, where chance improvements are common enough that at 1 standard
+#: error they would often be kept on a start that is already right.
 EVIDENCE = {"gain": 1.0, "shear_scale": 2.0, "centroid_shift": 2.0}
 _GROUP_NAMES = {"gain": "gain", "shear_scale": "shear scale", "centroid_shift": "centroid shift"}
 _COUNTED = {"gain": "presses", "shear_scale": "sheared presses", "centroid_shift": "presses"}
@@ -149,7 +149,10 @@ def fit_from_frames(frames: Sequence[str | os.PathLike], forces: str | os.PathLi
 
 def fit_measured(p: Presses, pipeline, *, model, start, forces) -> Calibration:
     """:func:`fit_presses` on measured presses, with the pipeline's sensor, camera, options and scale."""
-    options = {k: v for k, v in pipeline._options().items() if k in PIPELINE_KEYS and k != "method"}
+    # the region geometry as the pipeline resolved it (the calibration stores it so anyway)
+    geometry = {"radius": pipeline.grids.radius, "grid_mm": pipeline.grids.grid_mm}
+    options = {k: geometry[k] if k in geometry else getattr(pipeline, k)
+               for k in PIPELINE_KEYS if k != "method"}
     bits = pipeline.readings_bits or pipeline.bits or 8
     return fit_presses(p.readings, p.forces, pressed=p.pressed, sensor=pipeline.sensor, camera=pipeline.camera,
                        pipeline_options=options, model=model, start=start,

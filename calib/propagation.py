@@ -71,20 +71,20 @@ def jacobian(cal, readings: Readings) -> np.ndarray:
 
 def _local_jacobian(cal, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
     """Each element's own curves differentiated at its reading: (..., E, 3, 3), and the G used."""
-    cal._check(readings)
+    cal.check_readings(readings)
     G, u = np.asarray(readings.G, np.float64), np.asarray(readings.u, np.float64)
     if cal.crosstalk is not None:
-        G = cal.crosstalk.solve(cal.sensor, G, readings.contact, cal._normal_curve(u))
+        G = cal.crosstalk.solve(cal.sensor, G, readings.contact, cal.normal_curve(u))
     out = np.empty(G.shape + (3, 3))
     # steps that never vanish beside G (an element with almost no calibration samples has a tiny scale)
     h_g, h_u = np.maximum(1e-4 * cal.g_scale, 1e-7 * np.abs(G)), 1e-4 * cal.u_scale
-    out[..., 0] = (cal._per_element(G + h_g, u)[0] - cal._per_element(np.maximum(G - h_g, 0.0), u)[0]) \
+    curves = cal.per_element_forces
+    out[..., 0] = (curves(G + h_g, u)[0] - curves(np.maximum(G - h_g, 0.0), u)[0]) \
         / (G + h_g - np.maximum(G - h_g, 0.0))[..., None]
     for k in (0, 1):
         step = np.zeros(u.shape)
         step[..., k] = h_u
-        out[..., k + 1] = (cal._per_element(G, u + step)[0] - cal._per_element(G, u - step)[0]) \
-            / (2.0 * h_u)[..., None]
+        out[..., k + 1] = (curves(G, u + step)[0] - curves(G, u - step)[0]) / (2.0 * h_u)[..., None]
     return out, G
 
 

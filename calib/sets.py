@@ -22,7 +22,6 @@ holder): a second writer is refused at once. That housekeeping of the store
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import sys
 from dataclasses import asdict, dataclass
@@ -41,9 +40,9 @@ from optitact.optics.sensor import DomeSensor
 
 from optitact.calib.store import open_store, remove_partials, store_lock
 from optitact.calib.document import STACK_NOISE_UNNAMED
+from optitact.calib.patterns import PATTERNS, design_forces
 
-__all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "design_forces", "frame_seeds", "generate",
-           "RENDER_MODES"]
+__all__ = ["SCHEMA", "Design", "CalibrationSet", "FrameMaker", "frame_seeds", "generate", "RENDER_MODES"]
 
 #: How :func:`generate` renders its frames (see its ``render_mode``).
 RENDER_MODES = ("two_stage", "pixels", "full")
@@ -92,8 +91,6 @@ class Design:
         if frac > 1:
             raise InputError(f"sweep_fraction must be in [0, 1], got {frac}")
         object.__setattr__(self, "sweep_fraction", frac)
-        from optitact.calib.patterns import PATTERNS
-
         if self.pattern not in PATTERNS:
             raise InputError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
 
@@ -104,68 +101,6 @@ class Design:
         if self.pattern != "independent":
             out["pattern"] = self.pattern
         return out
-
-
-def design_forces(n_frames: int, n_elements: int, design: Design, seed: int,
-                  sensor: DomeSensor | None = None) -> np.ndarray:
-    """Element-local forces ``(n_frames, n_elements, 3)`` of a calibration set.
-
-    A design of another ``pattern`` than ``"independent"`` is drawn by
-    :func:`optitact.calib.patterns.pattern_forces` on ``sensor`` (default
-    the default sensor).
-
-    Notes
-    -----
-    The ``"independent"`` design:
-
-    * Sobol frames: a scrambled Sobol sequence (seeded) of
-      ``(u1, u2, u3)`` per element sample gives ``Fz = fz_max u1``, shear
-      magnitude ``min(mu_max Fz, shear_max) sqrt(u2)`` (uniform over the
-      allowed disc) and direction ``2 pi u3``.
-    * Normal sweep frames: ``Fz`` on an even grid over ``(0, fz_max]``,
-      shuffled over elements, no shear.
-    * Shear sweep frames: ``Fz = fz_max / 2``, shear along +-x or +-y with
-      magnitudes on an even grid up to the limit.
-    """
-    from scipy.stats import qmc
-
-    if design.pattern != "independent":
-        from optitact.calib.patterns import pattern_forces
-
-        sensor = DomeSensor.default() if sensor is None else sensor
-        if sensor.n_elements != n_elements:
-            raise InputError(f"n_elements ({n_elements}) is not the sensor's ({sensor.n_elements})")
-        return pattern_forces(design.pattern, n_frames, sensor, design, seed)
-    n_frames = integer(n_frames, "frames", minimum=1)
-    rng = np.random.default_rng([seed, 1])
-    n_sweep = int(round(design.sweep_fraction * n_frames))
-    n_normal = n_sweep // 2
-    n_shear = n_sweep - n_normal
-    n_sobol = n_frames - n_sweep
-    out = np.zeros((n_frames, n_elements, 3))
-    if n_sobol:
-        sob = qmc.Sobol(3, scramble=True, seed=np.random.default_rng([seed, 0]))
-        m = math.ceil(math.log2(max(n_sobol * n_elements, 2)))
-        u = sob.random_base2(m)[: n_sobol * n_elements].reshape(n_sobol, n_elements, 3)
-        fz = design.fz_max * u[..., 0]
-        mag = np.minimum(design.mu_max * fz, design.shear_max) * np.sqrt(u[..., 1])
-        ang = 2 * np.pi * u[..., 2]
-        out[:n_sobol] = np.stack([mag * np.cos(ang), mag * np.sin(ang), fz], axis=-1)
-    if n_normal:
-        levels = design.fz_max * np.arange(1, n_normal * n_elements + 1) / (n_normal * n_elements)
-        fz = rng.permutation(levels).reshape(n_normal, n_elements)
-        out[n_sobol:n_sobol + n_normal, :, 2] = fz
-    if n_shear:
-        fz = design.fz_max / 2
-        limit = min(design.mu_max * fz, design.shear_max)
-        k = n_shear * n_elements
-        mags = limit * np.arange(1, k + 1) / k
-        dirs = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[np.arange(k) % 4]
-        order = rng.permutation(k)
-        shear = (mags[:, None] * dirs)[order].reshape(n_shear, n_elements, 2)
-        out[n_sobol + n_normal:, :, :2] = shear
-        out[n_sobol + n_normal:, :, 2] = fz
-    return out
 
 
 def frame_seeds(seed: int, n_frames: int) -> np.ndarray:
@@ -240,6 +175,10 @@ class CalibrationSet:
         """All frames are done."""
         return bool(self.done.all())
 
+    def has_array(self, name: str) -> bool:
+        """Whether the set holds the array ``name`` (:meth:`array`; ``frames`` only with ``keep_frames``)."""
+        return name in self._group
+
     def array(self, name: str) -> np.ndarray:
         """A whole array of the set.
 
@@ -303,7 +242,8 @@ class FrameMaker:
 
     def __call__(self, forces, seed: int) -> dict:
         """Render, expose and read one frame of element-local ``forces`` with ``seed``."""
-        from optitact.render import render, spot_pixels
+        from optitact.render import render
+        from optitact.render.pathtrace import spot_pixels
 
         f = np.asarray(forces, dtype=np.float64)
         if self.render_mode == "two_stage":
@@ -381,7 +321,7 @@ def generate(path: str | os.PathLike, *, frames: int = 200, sensor: DomeSensor |
         baseline frames only), a few hundredths of a second per frame with no
         Monte Carlo noise; ``"pixels"``: path-traced, only the pixels the
         pipeline reads for the loaded elements
-        (:func:`optitact.render.spot_pixels`), composited over the mean
+        (:func:`optitact.render.pathtrace.spot_pixels`), composited over the mean
         no-load radiance; ``"full"``: path-traced whole frames. ``optitact
         bench render`` measures each against converged path tracing.
     table : EmissionTable, optional

@@ -13,7 +13,8 @@ import numpy as np
 from IPython.display import Image
 from matplotlib.figure import Figure
 from optitact.calib.shipped import default_calibration
-from optitact.render import render, spot_pixels
+from optitact.render import render
+from optitact.render.pathtrace import spot_pixels
 
 import optitact
 

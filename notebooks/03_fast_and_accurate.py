@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from IPython.display import Image
-from optitact.render import spot_pixels
+from optitact.render.pathtrace import spot_pixels
 from optitact.render.emission import emission_table
 from optitact.render.scene import patch_mesh
 

@@ -122,6 +122,30 @@ def check_keys(d, allowed, what: str, *, required=(), noun: str = "key") -> dict
     return dict(d)
 
 
+def json_numbers(value, what: str) -> np.ndarray:
+    """A nested list of JSON numbers as a float64 array; InputError naming ``what`` otherwise.
+
+    Strings ("0.99"), booleans, nulls and objects are refused (NumPy would
+    convert the first two), and so are values that are not finite in float64
+    (1e309 parses as infinity; integers beyond float64 overflow).
+    """
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise InputError(f"{what} must hold numbers, got {item!r} ({type(item).__name__})")
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, ArithmeticError):  # ragged lists; ints beyond float64 overflow
+        raise InputError(f"{what} must be a regular array of numbers within float64") from None
+    if not np.isfinite(a).all():
+        raise InputError(f"{what} must be finite, got {a[~np.isfinite(a)].flat[0]} (JSON numbers beyond "
+                         f"float64, such as 1e309, read as infinity)")
+    return a
+
+
 def float_like(arr: np.ndarray, like) -> np.ndarray:
     """``arr`` as float32 if ``like`` is float32 (float32 in, float32 out), else unchanged."""
     return arr.astype(np.float32) if np.asarray(like).dtype == np.float32 else arr

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from optitact._validate import check_type
-from optitact.optics.camera import Camera, FisheyeCamera
+from optitact.optics.camera import Camera, FisheyeCamera, check_camera_inside, trace_through_dome
 from optitact.optics.sensor import DomeSensor
 
 from optitact.render.scene import RenderSettings
@@ -50,8 +50,8 @@ def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSetti
     sensor : DomeSensor
     camera : Camera
         Any camera model. A :class:`~optitact.optics.camera.FisheyeCamera` (or any
-        camera with ``resample=False``) is path-traced (about 250 s at
-        640 x 480 on 2 CPU cores, once: cached).
+        camera with ``resample=False``) is path-traced (minutes on a CPU at
+        640 x 480, once: cached).
     settings : RenderSettings, optional
     variant : str, optional
     resample : bool
@@ -74,7 +74,7 @@ def noload_radiance(sensor: DomeSensor, camera: Camera, *, settings: RenderSetti
     Each pixel's ray of ``camera`` (from its position, exact undistortion) is
     followed through the dome: where it enters the dome's cavity it refracts
     at the inner sphere and meets the outer sphere at ``P``, and the nominal
-    camera's pixel that sees ``P`` (:func:`~optitact.optics.dome_optics.pixel_from_dome`)
+    camera's pixel that sees ``P`` (:func:`~optitact.optics.camera.pixel_from_dome`)
     is sampled bilinearly; where it crosses the base plane (``z = 0``) outside
     the inner sphere (the shell's base, where the rim light enters, and
     beyond) the nominal camera's pixel whose ray crosses the base plane at the
@@ -110,16 +110,15 @@ def _resample_noload(sensor: DomeSensor, camera: Camera, nominal: FisheyeCamera,
     """:func:`noload_radiance` of ``camera`` resampled from ``nominal``'s frame ``base`` (see its Notes)."""
     from scipy.ndimage import map_coordinates
 
-    from optitact.optics.dome_optics import _check_inside, _trace
-
     c = camera.position
-    _check_inside(sensor, c)
+    check_camera_inside(sensor, c)
     rows, cols = np.mgrid[0:camera.height, 0:camera.width]
     d = camera.ray_from_pixel(np.stack([rows, cols], axis=-1).astype(np.float64)).reshape(-1, 3)
     ray = np.isfinite(d).all(axis=1)
     d = np.where(ray[:, None], d, [0.0, 0.0, 1.0])
     with np.errstate(invalid="ignore", divide="ignore"):
-        p, dome = _trace(c, d, sensor.inner_radius, sensor.outer_radius, float(sensor.refractive_index))
+        p, dome = trace_through_dome(c, d, sensor.inner_radius, sensor.outer_radius,
+                                     float(sensor.refractive_index))
         dome &= ray
         target = np.full((d.shape[0], 2), np.nan)
         if dome.any():

@@ -1,4 +1,8 @@
-"""Renders kept in the user cache (:func:`~optitact.io.cache.cache_dir`), keyed by their inputs."""
+"""Path-traced renders kept in the user cache (:func:`~optitact.io.cache.cache_dir`), keyed by their inputs.
+
+Built on :mod:`optitact.render.pathtrace` (not on the package's :func:`optitact.render.render`, which
+sits above this module): a cached render is the ``transport="path"`` frame of the given forces.
+"""
 
 from __future__ import annotations
 
@@ -11,8 +15,9 @@ import numpy as np
 from optitact import __version__
 from optitact.io.cache import cache_dir
 from optitact.io.files import json_fingerprint, write_npy
-from optitact.render import render, spot_pixels
+from optitact.optics.contact import check_forces, contact_patches
 from optitact.render.backend import select_variant
+from optitact.render.pathtrace import path_trace, spot_pixels
 from optitact.render.scene import RenderSettings
 
 __all__ = ["cached_render", "render_cache_path"]
@@ -24,7 +29,7 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
 
     The key holds the sensor, camera, forces (exact float64 bytes), spp, seed,
     render settings, the variant, the mode and the package version. With
-    ``spot_pixels_only`` only :func:`optitact.render.spot_pixels` are rendered
+    ``spot_pixels_only`` only :func:`optitact.render.pathtrace.spot_pixels` are rendered
     (the rest of the image is 0). Written atomically
     (temporary file, then rename), so a killed run leaves no half file.
     """
@@ -35,11 +40,10 @@ def cached_render(sensor, forces, *, camera, spp: int, seed: int, variant: str |
                              spot_pixels_only=spot_pixels_only, settings=settings)
     if path.is_file():
         return np.load(path)
-    if spot_pixels_only:
-        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings,
-                     pixels=spot_pixels(sensor, camera, f))
-    else:
-        img = render(sensor, f, camera=camera, spp=spp, seed=seed, variant=used, settings=settings)
+    pixels = spot_pixels(sensor, camera, f) if spot_pixels_only else None
+    check_forces(f, sensor)
+    img, _ = path_trace(sensor, contact_patches(sensor, f), camera=camera, spp=spp, seed=seed, variant=used,
+                        settings=settings, pixels=pixels)
     write_npy(path, img)
     return img
 

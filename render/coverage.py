@@ -148,8 +148,8 @@ def patch_coverage(sensor: DomeSensor, camera: Camera, contacts: Contacts,
     # own footprint on the plane (which bounds the distance from the centre to any corner; 10 %
     # margin for the polygon's corners) are wholly in or out; the rest are sub-sampled with
     # n_sub x n_sub stratified points through the affine map (its error over one pixel is second
-    # order: below 1e-6 mm here; for distorted, off-axis, tilted models no worse than for the
-    # default fisheye, see tests/render/test_twostage.py).
+    # order, for distorted, off-axis, tilted models as for the default fisheye; see
+    # tests/render/test_twostage.py).
     rf, cf = row.astype(float), col.astype(float)
     lu, lw, trans = local(np.concatenate([rf, rf, rf + 1.0]), np.concatenate([cf, cf + 1.0, cf]),
                           np.tile(patch, 3))

@@ -313,7 +313,7 @@ def _measure(sensor, camera, settings, probes_c, probes_r, extra_c, extra_r, *, 
     """Path-trace probe patches (plus other patches) and return each probe's ``L_e`` and its stderr."""
     import cv2
 
-    from optitact.render import pass_seeds, render_contacts
+    from optitact.render.pathtrace import pass_seeds, path_trace
 
     n = len(probes_r)
     contacts = _contacts(np.concatenate([probes_c, extra_c]), np.concatenate([probes_r, extra_r]),
@@ -337,8 +337,8 @@ def _measure(sensor, camera, settings, probes_c, probes_r, extra_c, extra_r, *, 
     mask = (window > 0).reshape(camera.shape)
     sums = []
     for s in pass_seeds(seed, n_passes):
-        img = render_contacts(sensor, contacts, camera=camera, spp=max(spp // n_passes, 1), seed=int(s),
-                              variant=variant, settings=settings, pixels=mask, background=background)
+        img, _ = path_trace(sensor, contacts, camera=camera, spp=max(spp // n_passes, 1), seed=int(s),
+                            variant=variant, settings=settings, pixels=mask, background=background)
         diff = np.asarray(img, np.float64).reshape(-1) - bg
         sums.append(np.bincount(window, weights=diff, minlength=n + 1)[1:])
     mine = cov["patch"] < n
@@ -387,19 +387,17 @@ def emission_table(sensor: DomeSensor, camera: FisheyeCamera | None = None, *,
     with the package (:func:`shipped_table`): with ``spp=None`` (the
     default) or its own spp it is used and nothing is rendered. Otherwise
     ``spp=None`` measures at ``TABLE_SPP``; fewer samples measure faster (not
-    proportionally: each render has a fixed cost) and noisier. Measured on the
-    default sensor and camera against the 4096-spp table (20 frames, all 41
-    elements loaded), the error of an element's summed patch radiance (so of
-    its ``G``) is median 1.0 % (95th percentile 3.5 %) at 256 spp, 0.5 %
-    (1.8 %) at 512 and 0.5 % (1.3 %) at 1024. With ``progress`` a message
+    proportionally: each render has a fixed cost) and noisier (the errors
+    measured at 256 to 1024 spp are in the documentation's rendering
+    results, ``docs/results/render.md``). With ``progress`` a message
     on stderr says, before this one-time step, what it is, where it is cached
     and how long it should take (re-estimated after the first render), and a
     bar shows its progress.
     """
     from optitact.io.cache import cache_dir
 
-    from optitact.render import SPP_PER_PASS
     from optitact.render.backend import select_variant
+    from optitact.render.pathtrace import SPP_PER_PASS
 
     check_type(sensor, DomeSensor, "sensor")
     camera = measuring_camera(camera)

@@ -430,13 +430,11 @@ def build_scene(mi, sensor: DomeSensor, camera: Camera, contacts: Contacts,
     :class:`FisheyeCamera` gets the closed-form equidistant plugin, another
     model the ray-table plugin, its rays starting at ``camera.position``
     and interpolated between the pixel corners' rays (:func:`~optitact.render.rays.corner_rays`,
-    cached per camera and window: about 2 s for a distorted 640 x 480
-    pinhole's table, re-projecting within 0.001 px).
+    cached per camera and window; the table re-projects within 0.001 px).
     instanced : bool
         Put the shell (about 150,000 triangles at the default tessellation)
-        in a shape group drawn by one instance. Building the scene then takes
-        about a third of the time (0.05 s instead of 0.14 s here), but every
-        ray pays a two-level traversal (about 13 % more tracing time): worth
+        in a shape group drawn by one instance. The scene then builds faster,
+        but every ray pays a two-level traversal (slower tracing): worth
         it for light renders (a few thousand pixels, tens of samples), not
         for full frames at many samples. The geometry is the same; pixels
         differ only by floating-point rounding of the intersections.

@@ -19,8 +19,8 @@ transmittance back out, and the ray's hit on the patch's flat polygon — with
 no-load frame: a covered fraction ``c`` of a pixel shows the patch instead of
 what lay behind it.
 
-The names of stage 1 and of the coverage are importable from here too
-(``from optitact.render.twostage import emission_table``).
+Stage 1's names are imported from :mod:`optitact.render.emission` and the
+coverage's from :mod:`optitact.render.coverage`, where they are defined.
 
 Convention
 ----------
@@ -37,7 +37,7 @@ from optitact.optics.contact import Contacts
 from optitact.optics.sensor import DomeSensor
 
 from optitact.render.coverage import patch_coverage
-from optitact.render.emission import (EmissionTable)
+from optitact.render.emission import EmissionTable
 from optitact.render.scene import RenderSettings
 
 __all__ = ["render_two_stage"]

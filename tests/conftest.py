@@ -9,6 +9,7 @@ process, beside the tests.
 
 from __future__ import annotations
 
+import os
 import pathlib
 import subprocess
 import sys
@@ -31,7 +32,12 @@ settings.load_profile("optitact")
 @pytest.fixture(autouse=True, scope="session")
 def _private_cache(tmp_path_factory, request):
     mp = pytest.MonkeyPatch()
-    mp.setenv("OPTITACT_CACHE_DIR", str(tmp_path_factory.mktemp("optitact-cache")))
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # one cache for every worker of this run (writes are atomic)
+        cache = tmp_path_factory.getbasetemp().parent / "optitact-cache"
+        cache.mkdir(exist_ok=True)
+    else:
+        cache = tmp_path_factory.mktemp("optitact-cache")
+    mp.setenv("OPTITACT_CACHE_DIR", str(cache))
     early = getattr(request.config, "_optitact_early_notebooks", [])
     runner = None
     if early:
@@ -47,13 +53,40 @@ def _private_cache(tmp_path_factory, request):
 
 
 def pytest_collection_modifyitems(config, items):
-    """Run the notebook executions last (stable order otherwise); start the early ones at once."""
+    """Run the notebook executions last (stable order otherwise); start the early ones at once.
+
+    Under pytest-xdist (``-n 2 --dist loadfile``, the project's default) a file's tests run on one
+    worker, in order, and the notebooks are ordinary tests there: the other worker is the second core.
+    """
     items.sort(key=lambda item: item.get_closest_marker("notebook") is not None)
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        config._optitact_early_notebooks = []
+        return
     notebooks = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
     config._optitact_early_notebooks = [
         notebooks / f"{name}.ipynb" for name in EARLY_NOTEBOOKS
         if any(item.get_closest_marker("notebook") is not None and item.name.endswith(f"[{name}]")
                for item in items)]
+
+
+@pytest.fixture(scope="session")
+def finger_quick_study():
+    """``studies.run("finger", seed=0, size="quick")``, computed once per run (about a minute).
+
+    The finger tests and the finger notebook read it. Under pytest-xdist they may run on two
+    workers: the first computes it into the run's shared cache while holding a lock, the other
+    waits and then reads the cached result.
+    """
+    import fcntl
+
+    from optitact import studies
+
+    with open(pathlib.Path(os.environ["OPTITACT_CACHE_DIR"]) / "finger-quick-study.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            return studies.run("finger", seed=0, size="quick")
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 @pytest.fixture

@@ -46,6 +46,8 @@ def test_notebook_runs(script, tmp_path, request):
         result = json.loads((out / f"{script.stem}.json").read_text())
         assert not result["errors"], result["errors"]
         return
+    if script.stem == "06_finger":  # it reads the quick finger study the tests compute (and cache) once
+        request.getfixturevalue("finger_quick_study")
     nb = nbformat.read(script.with_suffix(".ipynb"), as_version=4)
     # No cell timeout: a busy machine is slow, not wrong (CI has its own overall limit).
     client = nbclient.NotebookClient(nb, timeout=None, startup_timeout=600, kernel_name="python3",

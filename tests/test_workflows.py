@@ -30,7 +30,8 @@ BENCH = textwrap.dedent('''
     import numpy as np
     from optitact.optics.sensor import DomeSensor
     from optitact.optics.camera_models import PinholeCamera
-    from optitact.calib.sets import Design, design_forces
+    from optitact.calib.patterns import design_forces
+    from optitact.calib.sets import Design
     from optitact.optics.camera_models import pose_from_position
     from optitact.optics.ccd import CCD
     from optitact.render import render

@@ -26,7 +26,7 @@ import warnings
 from optitact import __version__
 from optitact.errors import OptitactError, OptitactWarning
 
-__all__ = ["main", "parser", "USER_ERRORS"]
+__all__ = ["main", "parser", "USER_ERRORS", "BLAS_THREADS_SET"]
 
 #: Exceptions that mean bad input rather than a bug: a one-line message and exit code 2.
 #: OptitactError covers InputError, ShapeError, MissingExtraError and RenderError (Mitsuba set-up).
@@ -79,7 +79,7 @@ def _one_line(message, category, filename, lineno, file=None, line=None) -> None
 
 
 #: :func:`main` set ``OPENBLAS_NUM_THREADS=1`` itself (NumPy was not loaded yet and the user had not set it).
-_BLAS_THREADS_SET = False
+BLAS_THREADS_SET = False
 
 
 def _one_blas_thread() -> None:
@@ -89,10 +89,10 @@ def _one_blas_thread() -> None:
     (about 0.1 s of CPU at every start) on matrices this small. A user's setting is kept, and a
     process that loaded NumPy before calling :func:`main` keeps its threads.
     """
-    global _BLAS_THREADS_SET
+    global BLAS_THREADS_SET
     if "numpy" not in sys.modules and "OPENBLAS_NUM_THREADS" not in os.environ:
         os.environ["OPENBLAS_NUM_THREADS"] = "1"
-        _BLAS_THREADS_SET = True
+        BLAS_THREADS_SET = True
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -203,3 +203,11 @@ def check_frame_size(args, cal, source: str, shape: tuple[int, ...]) -> None:
         f"the camera it was made with: give frames of that camera, or calibrate this one (optitact register "
         f"... --out setup.json, then --calibration default --setup setup.json, or calibrate fit --setup "
         f"setup.json --start default)")
+
+
+def read_setup(path: Path) -> tuple:
+    """``(sensor, camera)`` of a ``--setup`` JSON file (:func:`optitact.registration.setup.read_setup`)."""
+    from optitact.registration.setup import read_setup as read
+
+    setup = read(path)
+    return setup.sensor, setup.camera

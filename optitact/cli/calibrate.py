@@ -197,7 +197,7 @@ def run_generate(args) -> int:
     from optitact.calib.sets import Design, generate
     from optitact.optics.camera import FisheyeCamera
 
-    from optitact.cli.process import read_setup
+    from optitact.cli._args import read_setup
 
     design = Design(fz_max=args.fz_max, shear_max=args.shear_max, mu_max=args.mu_max, pattern=args.pattern)
     if args.setup is not None:
@@ -338,7 +338,7 @@ def _presses_pipeline(setup, start, frames):
 
     if setup is None:
         return start.pipeline() if start is not None else default_pipeline(frames)
-    from optitact.cli.process import read_setup
+    from optitact.cli._args import read_setup
 
     sensor, camera = read_setup(setup)
     if start is None:

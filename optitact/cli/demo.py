@@ -275,7 +275,7 @@ def _setup(args, argv_size: bool):
     """``(sensor, camera)`` of ``--setup`` (camera None without one); the size options must agree."""
     if args.setup is None:
         return DomeSensor.default(), None
-    from optitact.cli.process import read_setup
+    from optitact.cli._args import read_setup
 
     sensor, camera = read_setup(args.setup)
     if argv_size and (args.width, args.height) != (camera.width, camera.height):

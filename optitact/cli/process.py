@@ -9,12 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from optitact.optics.camera import Camera, FisheyeCamera
+from optitact.optics.camera import FisheyeCamera
 from optitact.errors import InputError
 from optitact.live.stream import POLICIES
 from optitact.optics.sensor import DomeSensor
 
-from optitact.cli._args import calibration_on_setup, check_frame_size, int_at_least, positive_int
+from optitact.cli._args import (calibration_on_setup, check_frame_size, int_at_least, positive_int,
+                                read_setup)
 
 __all__ = ["add_parsers"]
 
@@ -123,14 +124,6 @@ def add_parsers(sub) -> None:
                       help="stop after S seconds")
 
     proc.set_defaults(run=run_process)
-
-
-def read_setup(path: Path) -> tuple[DomeSensor, Camera]:
-    """The sensor and camera of a ``--setup`` JSON file (:func:`optitact.registration.setup.read_setup`)."""
-    from optitact.registration.setup import read_setup as read
-
-    setup = read(path)
-    return setup.sensor, setup.camera
 
 
 def _load_baseline(path: Path) -> np.ndarray:
@@ -484,7 +477,7 @@ def _run_live(args) -> int:
     import time
 
     from optitact.io.tables import partial_path, per_frame_path
-    from optitact.live.stream import LiveWriter, _policy, source_label, stream
+    from optitact.live.stream import LiveWriter, frame_policy, source_label, stream
 
     if args.frames:
         raise InputError("give FRAMES or --camera, not both")
@@ -510,7 +503,7 @@ def _run_live(args) -> int:
     n_base, how = _baseline_note(args, baseline)
     frames = stream(args.camera, calibration=cal, pipeline=pipe, baseline=baseline, baseline_frames=n_base,
                     policy=args.policy, max_frames=args.max_frames, seconds=args.seconds)
-    which = ("every frame" if _policy(args.camera, args.policy) == "all"
+    which = ("every frame" if frame_policy(args.camera, args.policy) == "all"
              else "the newest frame, dropping the others when behind")
     label = source_label(args.camera)
     print(f"optitact: reading {label} ({which}), {how}; rows go to {partial_path(args.out)} as they come, "

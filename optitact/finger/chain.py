@@ -87,7 +87,7 @@ class ChainSimulator:
     render_options : dict, optional
         Extra keywords for :func:`optitact.render.render` (e.g.
         ``{"transport": "two_stage"}``); with the default path tracing only
-        the loaded elements' region pixels (:func:`optitact.render.spot_pixels`)
+        the loaded elements' region pixels (:func:`optitact.render.pathtrace.spot_pixels`)
         are rendered, over the mean no-load radiance.
 
     Notes
@@ -166,7 +166,8 @@ class ChainSimulator:
         return int(np.random.SeedSequence([self.seed, 7, int(index)]).generate_state(1)[0])
 
     def _radiance(self, forces: np.ndarray, seed: int) -> np.ndarray:
-        from optitact.render import render, spot_pixels
+        from optitact.render import render
+        from optitact.render.pathtrace import spot_pixels
 
         opts = dict(self.render_options)
         if opts.get("transport", "path") == "path":

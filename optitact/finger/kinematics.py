@@ -28,7 +28,7 @@ import numpy as np
 from optitact._validate import finite, integer, positive, real_array, real_number
 from optitact.errors import InputError, ShapeError
 
-__all__ = ["UnreachableError", "SingularityError", "Finger", "RMRCResult", "POSE_DOWN", "POSE_SCAN",
+__all__ = ["as_point", "UnreachableError", "SingularityError", "Finger", "RMRCResult", "POSE_DOWN", "POSE_SCAN",
            "POSE_TRACE"]
 
 class UnreachableError(InputError):
@@ -68,7 +68,8 @@ def _joints(theta, name: str = "theta") -> np.ndarray:
     return _vector3(theta, name, "one angle per joint, rad")
 
 
-def _point(value, name: str) -> np.ndarray:
+def as_point(value, name: str) -> np.ndarray:
+    """``value`` as a finite 3-vector (x, y, z in mm); InputError or ShapeError naming ``name``."""
     return _vector3(value, name, "x, y, z in mm")
 
 
@@ -305,7 +306,7 @@ class Finger:
         solution. Which of the (up to four) solutions is reached depends on
         ``theta0``.
         """
-        rd = _point(target, "target")
+        rd = as_point(target, "target")
         th = _joints(theta0, "theta0").copy()
         z = real_number(z, "z")
         tol, max_iter, max_step, cond_max = _rmrc_options(tol, max_iter, max_step, cond_max)
@@ -429,7 +430,7 @@ class Finger:
         ``J_4`` = :meth:`jacobian_stage` and ``e_k`` the position and
         lean errors (the lean row scaled by ``length_scale``).
         """
-        rd = _point(target, "target")
+        rd = as_point(target, "target")
         lean = real_number(lean_deg, "lean_deg")
         if not -90.0 < lean < 90.0:
             raise InputError(f"lean_deg must be in (-90, 90) degrees, got {lean!r}")

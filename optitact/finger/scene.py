@@ -29,7 +29,7 @@ import numpy as np
 from optitact._validate import finite, positive, real_array, real_number
 from optitact.errors import ShapeError
 from optitact.optics.sensor import DomeSensor
-from optitact.finger.kinematics import _point
+from optitact.finger.kinematics import as_point
 
 __all__ = ["Table", "Cylinder", "Box", "feeler_tips", "feeler_forces", "world_from_local", "local_from_world",
            "sliding_friction"]
@@ -148,7 +148,7 @@ def feeler_tips(sensor: DomeSensor, rotation, origin, *, feeler_height: float = 
     its outward normal, ``R`` the dome's outer radius, ``h`` =
     ``feeler_height``), moved into the world by ``rotation`` and ``origin``.
     """
-    rot, org = _rotation(rotation), _point(origin, "origin")
+    rot, org = _rotation(rotation), as_point(origin, "origin")
     h = positive(feeler_height, "feeler_height", allow_zero=True)
     return org + ((sensor.outer_radius + h) * sensor.element_frames[:, 2, :]) @ rot.T
 

@@ -45,7 +45,8 @@ from optitact.optics.camera import check_frame_size
 from optitact.errors import InputError, OptitactWarning, ShapeError
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "LOSSLESS_CODECS", "FramesWarning", "check_codec",
-           "expand_sources", "count_frames", "iter_frames", "read_ahead", "read_ahead_depth", "ReadAhead"]
+           "expand_sources", "count_frames", "iter_frames", "read_ahead", "read_ahead_depth", "ReadAhead",
+           "to_grey"]
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".wmv", ".mpg", ".mpeg")
@@ -170,7 +171,28 @@ def count_frames(files: Sequence[Path]) -> int | None:
     return total
 
 
-def _grey(img: np.ndarray, source: str) -> np.ndarray:
+def to_grey(img: np.ndarray, source: str) -> np.ndarray:
+    """A decoded image as a greyscale frame ``(H, W)``.
+
+    Parameters
+    ----------
+    img : (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) ndarray
+        A greyscale image, or a colour one in OpenCV's BGR or BGRA channel
+        order (as ``cv2.imread`` and ``cv2.VideoCapture`` return it).
+    source : str
+        Where the image came from, for the error message (e.g. ``"clip.mp4#12"``).
+
+    Returns
+    -------
+    (H, W) ndarray
+        The image itself when greyscale (its single channel as a view),
+        else ``cv2.cvtColor``'s grey conversion, of the image's dtype.
+
+    Raises
+    ------
+    ShapeError
+        Any other shape.
+    """
     import cv2
 
     if img.ndim == 2:
@@ -260,7 +282,7 @@ def iter_frames(files: Sequence[Path]) -> Iterator[tuple[str, np.ndarray]]:
             img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise InputError(f"{f}: OpenCV cannot read this image")
-            yield f.name, _grey(img, str(f))
+            yield f.name, to_grey(img, str(f))
 
 
 class ReadAhead:
@@ -435,7 +457,7 @@ def _luma_reader(f: Path, cap, cv2) -> tuple:
     except BaseException:
         raw.release()
         raise
-    grey = _grey(img, f"{f}#0") if ok else None
+    grey = to_grey(img, f"{f}#0") if ok else None
     if (ok and ok_raw and luma.dtype == np.uint8 and luma.shape == grey.shape
             and grey.dtype == np.uint8 and np.abs(luma.astype(np.int16) - grey).max() <= 1):
         cap.release()
@@ -492,7 +514,7 @@ def _video_frames(f: Path, cv2) -> Iterator[tuple[str, np.ndarray]]:
                 ok, img = cap.read(colour)
             if not ok:
                 break
-            grey = _grey(img, f"{f}#{k}")
+            grey = to_grey(img, f"{f}#{k}")
             # a colour frame is converted to a new grey array: the next frame is decoded into the
             # same colour one (no allocation, which takes the GIL in the middle of decoding)
             colour = img if img.ndim == 3 and img.shape[2] in (3, 4) else None

@@ -637,7 +637,7 @@ class ReadingsWriter:
         written as ISO 8601 in UTC), one of each per frame, by a writer made with ``times=True``.
         The frames' rows go to each CSV table in one write: if it fails, none of them is written.
         """
-        r = readings if readings.is_stack else readings._lifted()
+        r = readings.as_stack()
         n, n_el = len(r), r.n_elements
         if n != len(sources):
             raise ShapeError(f"got readings of {n} frames for {len(sources)} sources")

@@ -49,12 +49,12 @@ import numpy as np
 
 from optitact._validate import integer, positive
 from optitact.errors import InputError, ShapeError
-from optitact.io.frames import _grey, check_codec
+from optitact.io.frames import check_codec, to_grey
 from optitact.io.tables import ReadingsWriter
 from optitact.pipeline.frame_pipeline import Pipeline
 from optitact.pipeline.readings import Readings
 
-__all__ = ["POLICIES", "LiveFrame", "LiveWriter", "open_capture", "source_label", "stream"]
+__all__ = ["POLICIES", "LiveFrame", "LiveWriter", "frame_policy", "open_capture", "source_label", "stream"]
 
 #: How :func:`stream` takes frames from a capture: every one in order, or the newest (dropping the rest).
 POLICIES = ("all", "newest")
@@ -333,7 +333,7 @@ def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = N
     collection) or when an error, ``KeyboardInterrupt`` included, leaves it.
     A capture object passed in is released too.
     """
-    policy = _policy(source, policy)
+    policy = frame_policy(source, policy)
     n_base = integer(baseline_frames, "baseline_frames", minimum=0)
     if max_frames is not None:
         max_frames = integer(max_frames, "max_frames", minimum=1)
@@ -352,7 +352,14 @@ def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = N
     return _frames(source, calibration, pipeline, baseline, n_base, policy, max_frames, seconds, size)
 
 
-def _policy(source, policy: str | None) -> str:
+def frame_policy(source, policy: str | None) -> str:
+    """The frame policy for ``source``: ``policy`` checked, or ``"all"`` for files and ``"newest"`` for cameras.
+
+    Raises
+    ------
+    InputError
+        ``policy`` is not one of :data:`POLICIES`.
+    """
     if policy is None:
         return "all" if _is_file_source(source) or _is_capture(source) else "newest"
     if policy not in POLICIES:
@@ -399,7 +406,7 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
                                      f"no-load frame as the baseline (--baseline) or fewer baseline frames")
                 break
             index, t, img = item
-            frame = _grey(img, f"{label}#{index}")
+            frame = to_grey(img, f"{label}#{index}")
             if not isinstance(pipe, Pipeline):
                 pipe = (pipe or _default_pipeline)(frame.shape)
                 if baseline is not None:

@@ -6,7 +6,7 @@
 OpenCV's calibration output and :func:`camera_from_opencv` takes ``K`` and
 ``D`` arrays (both in :mod:`optitact.optics.opencv_files`, importable from here). Both
 models are :class:`optitact.optics.camera.Camera`: every function that
-takes a camera (the pipeline, :func:`optitact.optics.dome_optics.pixel_from_dome`, ...) takes them.
+takes a camera (the pipeline, :func:`optitact.optics.camera.pixel_from_dome`, ...) takes them.
 
 Convention
 ----------
@@ -28,8 +28,7 @@ from typing import ClassVar
 import numpy as np
 
 from optitact._validate import integer, real_number
-from optitact.optics.camera import CAMERA_MODELS, Camera, check_frame_size, rotation_from_rvec
-from optitact.optics.dome_optics import _bracketed_newton
+from optitact.optics.camera import CAMERA_MODELS, Camera, bracketed_newton, check_frame_size, rotation_from_rvec
 from optitact.errors import InputError
 
 __all__ = ["OpenCVFisheyeCamera", "PinholeCamera", "pose_from_position"]
@@ -162,7 +161,7 @@ class _OpenCVCamera(Camera):
             v, dv = g(x)
             return v - target, dv
 
-        x = _bracketed_newton(fun, np.zeros_like(target), np.full_like(target, xmax), np.minimum(target, xmax))
+        x = bracketed_newton(fun, np.zeros_like(target), np.full_like(target, xmax), np.minimum(target, xmax))
         return x.reshape(rd.shape), gmax
 
     def _pixel(self, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:

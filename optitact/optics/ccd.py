@@ -19,7 +19,7 @@ import numpy as np
 from optitact._validate import check_keys, finite, integer, positive, real_array, seed_value
 from optitact.errors import InputError, ShapeError
 
-__all__ = ["CCD", "IntensityScale", "dn_ratio"]
+__all__ = ["CCD", "IntensityScale", "check_bit_depth", "dn_ratio"]
 
 _BITS = (8, 10, 12, 16)
 #: Bit depths a frame's grey levels may be stated in (integer frames up to uint16).
@@ -424,7 +424,31 @@ class CCD:
 
 
 # ---------------------------------------------------------------------------- intensity scale
-def _frame_bits(value, name: str) -> int:
+def check_bit_depth(value, name: str) -> int:
+    """A frame bit depth, checked: an integer from 1 to ``MAX_FRAME_BITS`` (16).
+
+    Parameters
+    ----------
+    value : int
+        The bit depth of a frame's grey levels (12 for 12-bit data in ``uint16`` frames).
+    name : str
+        What the value is called in the error message (e.g. ``"bits"``).
+
+    Returns
+    -------
+    int
+        ``value`` as an ``int``.
+
+    Raises
+    ------
+    TypeError, InputError
+        ``value`` is not an integer, or not from 1 to ``MAX_FRAME_BITS``.
+
+    Examples
+    --------
+    >>> check_bit_depth(12, "bits")
+    12
+    """
     bits = integer(value, name)
     if not 1 <= bits <= MAX_FRAME_BITS:
         raise InputError(f"{name} must be a bit depth from 1 to {MAX_FRAME_BITS}, got {bits}")
@@ -461,7 +485,7 @@ class IntensityScale:
     gain: float = 1.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "bits", _frame_bits(self.bits, "bits"))
+        object.__setattr__(self, "bits", check_bit_depth(self.bits, "bits"))
         object.__setattr__(self, "exposure", positive(self.exposure, "exposure"))
         object.__setattr__(self, "gain", positive(self.gain, "gain"))
 
@@ -505,7 +529,7 @@ def dn_ratio(frame_bits: int, readings_bits: int) -> float:
     >>> dn_ratio(16, 8), dn_ratio(12, 12)
     (257.0, 1.0)
     """
-    hi, lo = 2**_frame_bits(frame_bits, "frame bits") - 1, 2**_frame_bits(readings_bits, "bits") - 1
+    hi, lo = 2**check_bit_depth(frame_bits, "frame bits") - 1, 2**check_bit_depth(readings_bits, "bits") - 1
     if hi % lo == 0:
         return float(hi // lo)
     if lo % hi == 0:

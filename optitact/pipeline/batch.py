@@ -49,23 +49,21 @@ from optitact.pipeline.imageops import check_frames
 __all__ = ["SHORT_RUN_PIXELS", "ProcessedFrames", "process_files"]
 
 #: A run of fewer frames x pixels than this takes the NumPy kernel when the compiled one is not
-#: loaded yet (``kernel="auto"``): loading numba and its cached kernel costs ~0.5 s of CPU
-#: (numba imports SciPy's BLAS), what the compiled kernel saves over NumPy on ~2,800 frames of
-#: 640x480 or ~950 of 1280x960 (measured on two-stage frames read from MJPG, every element
-#: loaded: the most lit pixels). The readings are the same bit for bit.
+#: loaded yet (``kernel="auto"``): loading numba and its cached kernel (numba imports SciPy's
+#: BLAS) costs more CPU than the compiled kernel saves over NumPy on a run this short, even with
+#: every element loaded (figures: docs/results/pipeline.md). The readings are the same bit for bit.
 SHORT_RUN_PIXELS = 1e9
 
 #: While :func:`process_files` decodes ahead, the interpreter's switch interval is at most this (s).
-#: The decoding thread needs the GIL back after every frame OpenCV decodes; by default (5 ms) it
-#: waits for it while this thread runs Python, and decoded ~1.5 frames/ms of 640x480 MJPG where
-#: alone it decodes ~2.1 (measured: ``optitact process`` on such a video took 0.955x the wall time
-#: with 2e-4 as with 5 ms, median of 12 paired runs).
+#: The decoding thread needs the GIL back after every frame OpenCV decodes; at the default (5 ms)
+#: it waits for it while this thread runs Python, and decodes slower than alone (figures:
+#: docs/results/pipeline.md).
 SWITCH_INTERVAL = 2e-4
 
 
 #: :func:`process_files`' progress bar appears once the run has taken this long (s). Until then
-#: tqdm is not even imported: its import alone (its version from ``importlib.metadata``) costs
-#: ~17 ms of the thread that reads the frames, a twentieth of a 500-frame 640x480 run.
+#: tqdm is not even imported: its import (its version from ``importlib.metadata``) would hold up
+#: the thread that reads the frames for a noticeable part of a short run.
 PROGRESS_DELAY = 0.5
 
 
@@ -92,7 +90,8 @@ class _Progress:
             from tqdm import tqdm
 
             bar = tqdm(**self._options)
-            bar.start_t = bar.last_print_t = bar._time() - (time.perf_counter() - self._t0)
+            # backdate the bar (made just now, start_t its clock's now) to when the work began
+            bar.start_t = bar.last_print_t = bar.start_t - (time.perf_counter() - self._t0)
             bar.update(self.n)
             self._bar = bar
 
@@ -420,11 +419,11 @@ def _process_files(sources, pipeline, calibration, baseline, baseline_frames, ou
     names: list[str] = []
     last = None
     n_frames = count_frames(files)
-    if (pipe.kernel == "numba" and pipe._kernel_request == "auto" and not _kernel.loaded()
+    if (pipe.kernel == "numba" and pipe.requested_kernel == "auto" and not _kernel.loaded()
             and n_frames * pipe.camera.shape[0] * pipe.camera.shape[1] < SHORT_RUN_PIXELS):
         pipe = pipe.replace(kernel="numpy")
     if scheduler is None:  # decode the next frames while these are processed
-        if pipe._threads_request is None and pipe.threads > 1:  # a core is the decoder's
+        if pipe.requested_threads is None and pipe.threads > 1:  # a core is the decoder's
             pipe = pipe.replace(threads=pipe.threads - 1)
         if frames is None:
             frames = read_ahead(iter_frames(files), depth=read_ahead_depth(pipe.camera.shape, batch))

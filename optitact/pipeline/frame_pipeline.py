@@ -20,7 +20,9 @@ The ``"fast"`` method (default) computes the same sums with the linear
 stages folded into per-pixel weights: the bilinear dewarp weights times the
 cells' areas and coordinates, summed per (element, pixel). A frame then costs
 one comparison pass over the frame to find the lit pixels and a few weighted
-sums over those.
+sums over those. The pipeline hands these sums to a
+:class:`~optitact.pipeline.fastpath.FastPath` that it makes and keeps
+(:attr:`Pipeline.fast_path`).
 
 Convention
 ----------
@@ -39,22 +41,20 @@ import math
 import numpy as np
 
 from optitact.pipeline import kernel as _kernel
-from optitact.pipeline.fastpath import (fast_compiled, fast_numpy,
-                                        fast_numpy_chunks, thread_count)
+from optitact.pipeline.fastpath import FastPath, thread_count
 from optitact.pipeline.fastpath import cores as _cores
 from optitact.pipeline.baseline import baseline_noise, impulse_floor, take_baseline
 from optitact._validate import integer, positive
 from optitact.optics.camera import Camera
-from optitact.optics.ccd import _frame_bits, dn_ratio
+from optitact.optics.ccd import check_bit_depth, dn_ratio
 from optitact.errors import InputError
 from optitact.pipeline.readings import Readings
 from optitact.pipeline.regions import (deferred_grids, dewarp, fold_regions, integrate)
 from optitact.optics.sensor import DomeSensor
-from optitact.pipeline.imageops import (FILTERS, STACK_NOISE, _gaussian_kernel, _mean0,
-                                        _saturation_level, add_clipped_tail, apply_threshold, check_frames,
-                                        denoise, estimate_noise, filter_radius, readings_from_moments,
-                                        subtract_baseline,
-                                        threshold_sigmas)
+from optitact.pipeline.imageops import (FILTERS, STACK_NOISE, add_clipped_tail, apply_threshold, check_frames,
+                                        denoise, estimate_noise, filter_radius, gaussian_kernel,
+                                        readings_from_moments, saturation_level, stack_mean,
+                                        subtract_baseline, threshold_sigmas)
 
 # The steps and the region geometry live in optitact.pipeline.imageops and optitact.pipeline.regions; they are
 # re-exported here, where the pipeline's stages are documented.
@@ -261,8 +261,8 @@ class Pipeline:
         self.k = positive(k, "k", allow_zero=True)
         self.min_pixels = positive(min_pixels, "min_pixels", allow_zero=True)
         self.saturation = None if saturation is None else positive(saturation, "saturation")
-        self.bits = None if bits is None else _frame_bits(bits, "bits")
-        self.readings_bits = None if readings_bits is None else _frame_bits(readings_bits, "readings_bits")
+        self.bits = None if bits is None else check_bit_depth(bits, "bits")
+        self.readings_bits = None if readings_bits is None else check_bit_depth(readings_bits, "readings_bits")
         #: Grey levels of the frames per grey level of the readings (1 unless ``bits`` and
         #: ``readings_bits`` differ): thresholds and the noise floor are in the frames' levels,
         #: the readings' G is divided by it.
@@ -271,7 +271,7 @@ class Pipeline:
         self._frame_saturation = None if self.saturation is None else self.saturation * self.dn_ratio
         # A separable Gaussian k (x) k scales white noise by its L2 norm, sum(k**2), and
         # correlates it over 1 / sum(k**2)**2 pixels (4 pi sigma^2).
-        gain = float(np.sum(_gaussian_kernel(filter_size) ** 2)) if filter == "gaussian" else 1.0
+        gain = float(np.sum(gaussian_kernel(filter_size) ** 2)) if filter == "gaussian" else 1.0
         #: Grey level (of ``frame - baseline``, after the filter) at or below which a pixel is
         #: dark: ``k * noise_sigma`` (times the filter's noise gain); see ``threshold_map``.
         self.threshold = self.k * self.noise_sigma * self.dn_ratio * gain
@@ -333,21 +333,30 @@ class Pipeline:
         if not np.isfinite(self.floor).all():
             raise InputError(f"the noise floor of G overflows float64 for min_pixels={self.min_pixels!r}, "
                              f"k={self.k!r}, noise_sigma={self.noise_sigma!r} and this baseline")
-        self._levels: dict = {}
         #: Baseline value (grey levels) of each entry of :attr:`region_weights`.
         self.entry_baseline = (np.zeros(len(self.region_weights.pixel)) if self.baseline is None
                               else self.baseline.reshape(-1)[self.region_weights.pixel])
+        #: The fast method (:class:`~optitact.pipeline.fastpath.FastPath`): made from the folded
+        #: weights, the entries' baselines and thresholds and the floor above; it keeps the per-dtype
+        #: precompute (lit levels, the compiled kernel's arguments).
+        self.fast_path = FastPath(fold, n_elements=self.grids.n_elements, frame_shape=camera.shape,
+                                  entry_baseline=self.entry_baseline, entry_threshold=self.entry_threshold,
+                                  floor=self.floor, saturation=self._frame_saturation, tail=self.tail,
+                                  filter=self.filter, filter_size=self.filter_size, baseline=self.baseline)
 
     # ------------------------------------------------------------------ set-up
     def _run_with(self, kernel: str, threads: int | None) -> None:
         """Set how the pipeline runs (``kernel`` and ``threads``: they change no reading)."""
         if kernel not in _kernel.KERNELS:
             raise InputError(f"kernel must be one of {_kernel.KERNELS}, got {kernel!r}")
-        self._kernel_request = kernel
+        #: The ``kernel`` option as given (``"auto"``, ``"numba"`` or ``"numpy"``); :attr:`kernel` is
+        #: the one that runs.
+        self.requested_kernel = kernel
         #: The fast method's kernel that runs: ``"numba"`` (compiled, the ``fast`` extra) or
         #: ``"numpy"`` (the fallback; also what runs after a filter).
         self.kernel = _kernel.resolve(kernel)
-        self._threads_request = threads
+        #: The ``threads`` option as given (None: every core, see :meth:`threads_for`).
+        self.requested_threads = threads
         #: Most threads a (T, H, W) batch is split across (default: the cores this process may use).
         self.threads = _cores() if threads is None else integer(threads, "threads", minimum=1)
 
@@ -367,10 +376,10 @@ class Pipeline:
         (:func:`~optitact.pipeline.baseline.baseline_noise`).
         """
         stack, _ = check_frames(baseline, self.camera, "baseline")
-        self._check_scale(stack, "baseline")
+        self.check_scale(stack, "baseline")
         self.baseline_dtype = stack.dtype
         frames = stack.astype(np.float64)
-        b = _mean0(frames)
+        b = stack_mean(frames)
         b.flags.writeable = False
         self._one_frame = len(frames) < 2
         self._baseline_frames = len(frames)
@@ -390,13 +399,29 @@ class Pipeline:
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
                     noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
                     saturation=self.saturation, bits=self.bits, readings_bits=self.readings_bits,
-                    kernel=self._kernel_request, threads=self._threads_request, tail=self.tail,
+                    kernel=self.requested_kernel, threads=self.requested_threads, tail=self.tail,
                     stack_noise=self.stack_noise, **self._geometry)
 
-    def _check_scale(self, stack: np.ndarray, name: str) -> None:
-        """InputError when integer frames are not of the pipeline's bit depth or the baseline's dtype.
+    def check_scale(self, stack: np.ndarray, name: str = "frames") -> None:
+        """Refuse integer frames that are not of the pipeline's bit depth or of the baseline's dtype.
 
         Float frames are taken to be in the frames' grey levels as they are.
+        :meth:`process` checks its frames so; a function that reads frames
+        with the pipeline's thresholds without processing them calls it.
+
+        Parameters
+        ----------
+        stack : (T, H, W) ndarray
+            The frames (as :func:`check_frames` returns them).
+        name : str
+            What they are called in the error message.
+
+        Raises
+        ------
+        InputError
+            Integer frames of another dtype than the baseline, or not of the
+            pipeline's bit depth (see ``bits`` and ``readings_bits``), or
+            with a value above its full scale.
         """
         if stack.dtype.kind not in "ui":
             return
@@ -435,9 +460,9 @@ class Pipeline:
         """
         if changes and changes.keys() <= RUN_OPTIONS:  # the same readings: nothing to make again
             out = copy.copy(self)
-            out._levels = dict(self._levels)
-            out._run_with(changes.get("kernel", self._kernel_request),
-                          changes.get("threads", self._threads_request))
+            out.fast_path = self.fast_path.copy()  # its caches its own
+            out._run_with(changes.get("kernel", self.requested_kernel),
+                          changes.get("threads", self.requested_threads))
             return out
         opts = self._options() | {"baseline": self._baseline_input} | changes
         if "filter" in changes and "filter_size" not in changes:
@@ -478,7 +503,7 @@ class Pipeline:
             depth (see ``bits`` and ``readings_bits``).
         """
         stack, single = check_frames(frames, self.camera)
-        self._check_scale(stack, "frames")
+        self.check_scale(stack, "frames")
         out = self._process(stack, single)
         if self.dn_ratio != 1.0:
             out = Readings(out.G / self.dn_ratio, out.u, out.contact, out.saturated)
@@ -488,16 +513,36 @@ class Pipeline:
         if self.method == "reference":
             out = Readings.stack([self._reference(f) for f in stack])
         elif self.kernel == "numba" and self.filter == "none":
-            return fast_compiled(self, stack, single)
+            return self.fast_path.process_compiled(stack, single, 1 if single else self.threads_for(len(stack)))
         elif single:
-            return fast_numpy(self, stack, single=True)
+            return self.fast_path.process_numpy(stack, single=True)
         else:
-            return fast_numpy_chunks(self, stack)
+            return self.fast_path.process_numpy_chunks(stack, self.threads_for(len(stack)))
         return out[0] if single else out
 
     def threads_for(self, n_frames: int) -> int:
         """Threads a stack of ``n_frames`` frames is split across (see ``threads``)."""
-        return thread_count(self._threads_request, self.threads, n_frames)
+        return thread_count(self.requested_threads, self.threads, n_frames)
+
+    def lit_levels(self, dtype) -> np.ndarray:
+        """The grey level above which a frame of ``dtype`` lights each entry of :attr:`region_weights`.
+
+        For integer frames an entry is lit exactly when ``frame > level``
+        (``frame - baseline > threshold`` in float64, as the reference tests
+        it); for float frames ``frame > level`` picks the candidates, and that
+        test decides among them. See :meth:`.FastPath.levels`.
+
+        Parameters
+        ----------
+        dtype : numpy.dtype
+            The frames' dtype.
+
+        Returns
+        -------
+        (n_entries,) ndarray of ``dtype``
+            Kept per dtype: not to be written to.
+        """
+        return self.fast_path.levels(np.dtype(dtype)).level
 
     def stream(self, frames, *, baseline_frames: int = 0):
         """Yield readings frame by frame from an iterable of frames.
@@ -527,50 +572,10 @@ class Pipeline:
         g, _ = integrate(dewarp(img, self.grids), self.grids)
         # the centroid weighs each lit value by its height above the threshold
         w, m = integrate(dewarp(np.where(img > thr, img - thr, 0.0), self.grids), self.grids)
-        level = _saturation_level(frame.dtype, self._frame_saturation)
+        level = saturation_level(frame.dtype, self._frame_saturation)
         hot = dewarp((frame >= level).astype(np.float64), self.grids)
         out = readings_from_moments(g, m, (hot > 0).any(axis=(1, 2)), self.floor, weight=w)
         return add_clipped_tail(out, w) if self.tail == "gaussian" else out
-
-    def _level(self, dtype: np.dtype):
-        """Lit level per region entry for frames of ``dtype``, and the entries to watch for saturation.
-
-        For integer frames an entry is lit exactly when ``frame > level``,
-        ``level`` the largest grey level ``n`` with ``n - baseline <=
-        threshold`` in float64, as the reference tests it. For float frames
-        ``level`` lies a few ulps below ``baseline + threshold``: ``frame >
-        level`` picks the candidates, and the reference's own test ``frame -
-        baseline > threshold`` (float64) decides among them, so both methods
-        light the same pixels even at the threshold itself. Entries whose
-        level reaches the saturation level cannot show saturation by being
-        lit; they are watched separately.
-        """
-        key = dtype.str
-        if key not in self._levels:
-            b, thr = self.entry_baseline, self.entry_threshold
-            sat = _saturation_level(dtype, self._frame_saturation)
-            if dtype.kind in "ui":
-                top = np.iinfo(dtype).max
-                # The largest n with n - b <= threshold in float64, as the reference
-                # tests it: floor(b + threshold) can be one off after rounding.
-                n = np.floor(b + thr)
-                n += (n + 1.0) - b <= thr
-                n -= n - b > thr
-                level = np.clip(n, 0, top).astype(dtype)
-            else:
-                # safely below every x with x - b > thr: 4 ulps of the largest magnitude involved
-                top = b + thr
-                low = top - 4.0 * np.spacing(np.maximum(np.maximum(np.abs(b), np.abs(thr)), np.abs(top)))
-                with np.errstate(over="ignore"):  # beyond float32: +inf, so never a candidate (right)
-                    level = low.astype(dtype)
-                down = level.astype(np.float64) > low
-                level[down] = np.nextafter(level[down], -np.inf)
-            if math.isinf(sat):
-                watch = np.zeros(0, np.intp)
-            else:
-                watch = np.flatnonzero(b + thr >= sat - 1e-9 * max(1.0, sat))
-            self._levels[key] = (level, watch, sat)
-        return self._levels[key]
 
 
 def _check_filter_fits(method: str, size: float, camera: Camera) -> None:

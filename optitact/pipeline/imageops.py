@@ -31,10 +31,10 @@ from optitact.errors import InputError, KindError, OptitactWarning, ShapeError
 from optitact.pipeline.readings import Readings
 
 __all__ = ["FILTERS", "G_MIN", "MAX_GREY", "add_clipped_tail", "apply_threshold", "check_frames",
-           "clipped_tail", "denoise", "estimate_noise", "filter_radius", "impulse_hits", "impulses",
-           "maximum_noise", "noise_from_one_frame", "noise_from_stack", "noise_from_variance",
-           "pooled_variance", "readings_from_moments", "subtract_baseline", "temporal_variance",
-           "threshold_sigmas"]
+           "clipped_tail", "denoise", "estimate_noise", "filter_radius", "gaussian_kernel", "impulse_hits",
+           "impulses", "maximum_noise", "noise_from_one_frame", "noise_from_stack", "noise_from_variance",
+           "pooled_variance", "readings_from_moments", "saturation_level", "stack_mean", "subtract_baseline",
+           "temporal_variance", "threshold_sigmas"]
 
 FILTERS = ("none", "gaussian", "median")
 #: moments) and the squares in the noise estimates then stay far inside float64's range.
@@ -126,12 +126,27 @@ def _within_max_grey(arr: np.ndarray) -> bool:
     return bool(arr.min() >= -bound and arr.max() <= bound)  # NaN fails both
 
 
-def _mean0(frames: np.ndarray) -> np.ndarray:
+def stack_mean(frames: np.ndarray) -> np.ndarray:
     """Mean over the first axis of a float64 array, to float64 rounding for any length.
 
     Pairwise sums (error growing as log T, where numpy's reduction over the
     first axis grows as T), then one correction pass: the pairwise mean of
     the residuals, which are small, is added back.
+
+    Parameters
+    ----------
+    frames : (T, ...) float64 ndarray
+        A stack, ``T >= 1``.
+
+    Returns
+    -------
+    (...) float64 ndarray
+        The mean frame (a new array).
+
+    Examples
+    --------
+    >>> stack_mean(np.array([[1.0, 2.0], [3.0, 6.0]]))
+    array([2., 4.])
     """
     t_n = frames.shape[0]
     mean = _pairwise_sum0(frames) / t_n
@@ -150,12 +165,31 @@ def _pairwise_sum0(a: np.ndarray) -> np.ndarray:
 
 
 def _var0(frames: np.ndarray) -> np.ndarray:
-    """Sample variance (ddof = 1) over the first axis, with :func:`_mean0`'s accuracy."""
-    dev = frames - _mean0(frames)
+    """Sample variance (ddof = 1) over the first axis, with :func:`stack_mean`'s accuracy."""
+    dev = frames - stack_mean(frames)
     return _pairwise_sum0(dev * dev) / (frames.shape[0] - 1)
 
 
-def _saturation_level(dtype: np.dtype, saturation: float | None) -> float:
+def saturation_level(dtype: np.dtype, saturation: float | None) -> float:
+    """Grey level at and above which a pixel of a ``dtype`` frame is saturated.
+
+    Parameters
+    ----------
+    dtype : numpy.dtype
+        The frames' dtype.
+    saturation : float or None
+        The level stated (in the frames' grey levels); None: the integer
+        dtype's maximum (255, 65535), or none (``inf``) for float frames.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> saturation_level(np.dtype(np.uint8), None), saturation_level(np.dtype(np.float32), None)
+    (255.0, inf)
+    """
     if saturation is not None:
         return saturation
     if dtype.kind in "ui":
@@ -187,7 +221,26 @@ def subtract_baseline(frame, baseline=None, *, clip: bool = True) -> np.ndarray:
     return np.maximum(img, 0.0) if clip else np.array(img)
 
 
-def _gaussian_kernel(size: float) -> np.ndarray:
+def gaussian_kernel(size: float) -> np.ndarray:
+    """The 1-D kernel of the ``"gaussian"`` filter (:func:`denoise`): sigma ``size`` px, 3 sigma each side.
+
+    Parameters
+    ----------
+    size : float
+        The Gaussian's sigma in pixels, > 0.
+
+    Returns
+    -------
+    (2 r + 1,) float64 ndarray
+        The normalised kernel, ``r = max(1, ceil(3 size))``; the filter
+        applies it along rows and columns.
+
+    Examples
+    --------
+    >>> k = gaussian_kernel(1.0)
+    >>> len(k), round(float(k.sum()), 12)
+    (7, 1.0)
+    """
     import cv2
 
     radius = max(1, math.ceil(3.0 * size))
@@ -197,7 +250,7 @@ def _gaussian_kernel(size: float) -> np.ndarray:
 def filter_radius(method: str, size: float) -> int:
     """Pixels on each side that a filter reads (0 for ``"none"``)."""
     if method == "gaussian":
-        return (len(_gaussian_kernel(size)) - 1) // 2
+        return (len(gaussian_kernel(size)) - 1) // 2
     if method == "median":
         return int(size) // 2
     return 0
@@ -223,7 +276,7 @@ def denoise(image, *, method: str = "none", size: float = 1.0) -> np.ndarray:
     if method == "gaussian":
         import cv2
 
-        k = _gaussian_kernel(size)
+        k = gaussian_kernel(size)
         return cv2.sepFilter2D(img, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT_101)
     if method == "median":
         from scipy.ndimage import median_filter

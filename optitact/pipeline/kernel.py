@@ -6,8 +6,9 @@ comparison with its lit levels (which the compiler vectorises); in a lit
 chunk the lit pixels' entries add their weighted values to their element's
 sums (G, the centroid's weight and its first moments), so the work beyond
 the one pass is proportional to the lit pixels. The sums run in entry
-order, as ``np.bincount`` adds them in :func:`optitact.pipeline.fastpath.fast_numpy`
-(the NumPy path), so both give the same readings bit for bit.
+order, as ``np.bincount`` adds them in
+:meth:`optitact.pipeline.fastpath.FastPath.process_numpy` (the NumPy path),
+so both give the same readings bit for bit.
 
 numba is imported on first use only, never by ``import optitact``; the
 compiled functions are cached in the user cache folder
@@ -90,24 +91,27 @@ CHUNK = 64
 _GATHER_BITS = 0x0102040810204080
 
 
-def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, params, floor,
-              sums, u_out, flags):  # pragma: no cover - compiled by numba
+def _lit_sums(flat, t0, t1, entry_element, next_same_pixel, entry_table, watched, chunk_start, slot_entry,
+              slot_level, settings, floor, sums, u_out, flags):  # pragma: no cover - compiled by numba
     """Frames ``t0 .. t1 - 1`` of ``flat`` (T, H*W): per-element readings into rows of the outputs.
 
     The region entries are grouped in chunks of :data:`CHUNK` consecutive
-    frame pixels (``cpix``: first pixel; ``clevel``: each slot's lit level,
-    the dtype's largest value where no entry of the chunk is; ``centry``: the
-    entry in each slot, or -1). A dark chunk costs one fixed-length
-    comparison (vectorised); in a lit one, the lit slots become a bit mask
-    whose set bits are visited in order, so the lit entries are summed in
-    entry order (running sums kept in registers while the element stays the
-    same, from one lit chunk to the next: a spot's rows), as ``np.bincount``
-    sums them in :func:`optitact.pipeline.fastpath.fast_numpy`.
+    frame pixels (``chunk_start``: each chunk's first pixel; ``slot_level``:
+    each slot's lit level, the dtype's largest value where no entry of the
+    chunk is; ``slot_entry``: the entry in each slot, or -1). A dark chunk
+    costs one fixed-length comparison (vectorised); in a lit one, the lit
+    slots become a bit mask whose set bits are visited in order, so the lit
+    entries are summed in entry order (running sums kept in registers while
+    the element stays the same, from one lit chunk to the next: a spot's
+    rows), as ``np.bincount`` sums them in
+    :meth:`optitact.pipeline.fastpath.FastPath.process_numpy`.
 
-    ``more``: whether the next entry reads the same pixel (regions that
-    touch share pixels; ``centry`` holds the first). ``fent`` (n, 5): each
-    entry's baseline, threshold, area and the centroid weights x, y.
-    ``params``: saturation level (``inf``: none), ``G_MIN``, and 1.0 for
+    ``entry_element``: each entry's element. ``next_same_pixel``: whether the
+    next entry reads the same pixel (regions that touch share pixels;
+    ``slot_entry`` holds the first). ``entry_table`` (n, 5): each entry's
+    baseline, threshold, area and the centroid weights x, y. ``watched``
+    (m, 2): pixel and element of the entries watched for saturation.
+    ``settings``: saturation level (``inf``: none), ``G_MIN``, and 1.0 for
     float frames, where ``frame > level`` only selects candidates and
     ``frame - base > thr`` (float64) decides, as the reference tests it.
     Each frame's sums then become readings as
@@ -115,59 +119,61 @@ def _lit_sums(flat, t0, t1, label, more, fent, watch, cpix, centry, clevel, para
     operations): contact where ``G > floor`` and ``G > g_min``, else G = 0;
     ``u = M / weight`` where in contact with a positive weight, else 0.
     """
-    sat, g_min, exact = params[0], params[1], params[2] != 0.0
-    n_chunks = cpix.shape[0]
+    sat, g_min, exact = settings[0], settings[1], settings[2] != 0.0
+    n_chunks = chunk_start.shape[0]
     mask = np.zeros(CHUNK, np.uint8)
     words = mask.view(np.uint64)
     for t in range(t0, t1):
         frame = flat[t]
         g, w, hot, contact, u = sums[0, t], sums[1, t], flags[0, t], flags[1, t], u_out[t]
         e = -1  # the element whose running sums are in registers (kept across chunks: a spot's rows)
-        gg = ww = xx = yy = 0.0
+        g_run = w_run = mx_run = my_run = 0.0  # its G, centroid weight and first moments x, y
         for k in range(n_chunks):
-            p0 = cpix[k]
-            fr = frame[p0:p0 + CHUNK]
-            lv = clevel[k * CHUNK:(k + 1) * CHUNK]
+            start = chunk_start[k]
+            chunk_grey = frame[start:start + CHUNK]
+            chunk_level = slot_level[k * CHUNK:(k + 1) * CHUNK]
+            # this test is most of a dark frame's time and must vectorise; LLVM's vectoriser is fragile
+            # here (a local's name once stopped it): time `optitact bench pipeline` after any edit
             any_lit = False
             for j in range(CHUNK):
-                any_lit |= fr[j] > lv[j]
+                any_lit |= chunk_grey[j] > chunk_level[j]
             if not any_lit:
                 continue
             # the mask only for lit chunks: writing it in the test above keeps that loop from vectorising
             for j in range(CHUNK):
-                mask[j] = fr[j] > lv[j]
+                mask[j] = chunk_grey[j] > chunk_level[j]
             bits = np.uint64(0)
             for q in range(CHUNK // 8):
                 bits |= ((words[q] * np.uint64(_GATHER_BITS)) >> np.uint64(56)) << np.uint64(8 * q)
             while bits:
                 j = trailing_zeros(bits)
                 bits &= bits - np.uint64(1)
-                i = centry[k * CHUNK + j]
-                x = float(fr[j])
+                i = slot_entry[k * CHUNK + j]
+                grey = float(chunk_grey[j])
                 while True:  # every entry of this pixel (regions that touch can share one), in entry order
-                    v = x - fent[i, 0]
-                    thr = fent[i, 1]
+                    v = grey - entry_table[i, 0]
+                    thr = entry_table[i, 1]
                     if not exact or v > thr:
-                        if label[i] != e:
+                        if entry_element[i] != e:
                             if e >= 0:
-                                g[e], w[e], u[e, 0], u[e, 1] = gg, ww, xx, yy
-                            e = label[i]
-                            gg, ww, xx, yy = g[e], w[e], u[e, 0], u[e, 1]
-                        if x >= sat:
+                                g[e], w[e], u[e, 0], u[e, 1] = g_run, w_run, mx_run, my_run
+                            e = entry_element[i]
+                            g_run, w_run, mx_run, my_run = g[e], w[e], u[e, 0], u[e, 1]
+                        if grey >= sat:
                             hot[e] = True
                         above = max(v - thr, 0.0)
-                        gg += fent[i, 2] * v
-                        ww += fent[i, 2] * above
-                        xx += fent[i, 3] * above
-                        yy += fent[i, 4] * above
-                    if not more[i]:
+                        g_run += entry_table[i, 2] * v
+                        w_run += entry_table[i, 2] * above
+                        mx_run += entry_table[i, 3] * above
+                        my_run += entry_table[i, 4] * above
+                    if not next_same_pixel[i]:
                         break
                     i += 1
         if e >= 0:
-            g[e], w[e], u[e, 0], u[e, 1] = gg, ww, xx, yy
-        for j in range(watch.shape[0]):
-            if float(frame[watch[j, 0]]) >= sat:
-                hot[watch[j, 1]] = True
+            g[e], w[e], u[e, 0], u[e, 1] = g_run, w_run, mx_run, my_run
+        for j in range(watched.shape[0]):
+            if float(frame[watched[j, 0]]) >= sat:
+                hot[watched[j, 1]] = True
         for e in range(g.shape[0]):
             in_contact = g[e] > floor[e] and g[e] > g_min
             contact[e] = in_contact
@@ -192,14 +198,14 @@ def chunks(pixel: np.ndarray, level: np.ndarray, n_pixels: int) -> tuple:
 
     Returns
     -------
-    cpix : (K,) intp
+    chunk_start : (K,) intp
         First frame pixel of each chunk.
-    centry : (K * CHUNK,) int32 (intp beyond 2**31 entries)
+    slot_entry : (K * CHUNK,) int32 (intp beyond 2**31 entries)
         The (first) entry read at each slot of each chunk, or -1.
-    clevel : (K * CHUNK,) level.dtype
+    slot_level : (K * CHUNK,) level.dtype
         The lit level of each slot: the entry's, or the dtype's largest
         value (``inf`` for floats) where no entry is, so that it never lights.
-    more : (n,) bool
+    next_same_pixel : (n,) bool
         Whether entry ``i + 1`` reads the same pixel as entry ``i``.
     """
     pixel = np.asarray(pixel, np.intp)
@@ -213,19 +219,20 @@ def chunks(pixel: np.ndarray, level: np.ndarray, n_pixels: int) -> tuple:
         starts.append(p0)
         opens.append(i)
         i = int(np.searchsorted(pixel, p0 + CHUNK, "left"))
-    cpix = np.asarray(starts, np.intp)
-    k = np.repeat(np.arange(len(cpix)), np.diff(np.append(opens, n)))
-    slot = k * CHUNK + pixel - cpix[k]
-    more = np.zeros(n, bool)
-    more[:-1] = same
+    chunk_start = np.asarray(starts, np.intp)
+    k = np.repeat(np.arange(len(chunk_start)), np.diff(np.append(opens, n)))
+    slot = k * CHUNK + pixel - chunk_start[k]
+    next_same_pixel = np.zeros(n, bool)
+    next_same_pixel[:-1] = same
     first = np.ones(n, bool)  # the first entry of its pixel
-    first[1:] = ~more[:-1]
-    centry = np.full(len(cpix) * CHUNK, -1, np.int32 if n < 2**31 else np.intp)  # small: stays in cache
-    centry[slot[first]] = np.flatnonzero(first)
+    first[1:] = ~next_same_pixel[:-1]
+    # int32 where it can: small, stays in cache
+    slot_entry = np.full(len(chunk_start) * CHUNK, -1, np.int32 if n < 2**31 else np.intp)
+    slot_entry[slot[first]] = np.flatnonzero(first)
     top = np.inf if level.dtype.kind == "f" else np.iinfo(level.dtype).max
-    clevel = np.full(len(cpix) * CHUNK, top, level.dtype)
-    clevel[slot] = level
-    return cpix, centry, clevel, more
+    slot_level = np.full(len(chunk_start) * CHUNK, top, level.dtype)
+    slot_level[slot] = level
+    return chunk_start, slot_entry, slot_level, next_same_pixel
 
 
 def _compile():
@@ -266,8 +273,10 @@ def lit_sums(flat, t0, t1, args, out) -> None:
     t0, t1 : int
         The frames to sum (rows of the outputs they fill).
     args : tuple
-        ``(label, more, fent, watch, cpix, centry, clevel, params, floor)``
-        (see :func:`_lit_sums` and :func:`chunks`; ``watch`` (m, 2): pixel
+        ``(entry_element, next_same_pixel, entry_table, watched, chunk_start,
+        slot_entry, slot_level, settings, floor)``, as
+        :meth:`optitact.pipeline.fastpath.FastPath.kernel_args` makes them
+        (see :func:`_lit_sums` and :func:`chunks`; ``watched`` (m, 2): pixel
         and element of the entries watched for saturation).
     out : tuple of ndarrays
         ``(sums, u, flags)``: (2, T, E) G and the centroid's weight, (T, E,

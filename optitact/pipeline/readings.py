@@ -92,11 +92,21 @@ class Readings:
         items = list(items)
         if not items:
             raise InputError("cannot stack an empty list of readings")
-        as_stack = [r if r.is_stack else r._lifted() for r in items]
-        return cls(*(np.concatenate([getattr(r, f) for r in as_stack])
+        stacks = [r.as_stack() for r in items]
+        return cls(*(np.concatenate([getattr(r, f) for r in stacks])
                      for f in ("G", "u", "contact", "saturated")))
 
-    def _lifted(self) -> Readings:
+    def as_stack(self) -> Readings:
+        """These readings as a stack ``(T, E)``: a single frame's as a stack of one (views), a stack itself.
+
+        Examples
+        --------
+        >>> r = Readings.empty(41)
+        >>> r.as_stack().G.shape, len(r.as_stack()), r.as_stack().as_stack().G.shape
+        ((1, 41), 1, (1, 41))
+        """
+        if self.is_stack:
+            return self
         return Readings(self.G[None], self.u[None], self.contact[None], self.saturated[None])
 
     def as_dict(self) -> dict[str, np.ndarray]:

@@ -35,7 +35,8 @@ from optitact.errors import InputError
 from optitact.optics.sensor import DomeSensor
 
 __all__ = ["OVERSAMPLE", "REGION_MARGIN_MM", "RegionGrids", "RegionWeights", "default_region_radius",
-           "deferred_grids", "dewarp", "fold_regions", "integrate", "region_weights", "split_regions"]
+           "deferred_grids", "dewarp", "fold_regions", "forget_folded_weights", "integrate", "region_weights",
+           "split_regions"]
 
 #: Margin (mm) added to the farthest reach of a cone's patch for the default region radius.
 REGION_MARGIN_MM = 0.5
@@ -552,6 +553,16 @@ def fold_regions(sensor: DomeSensor, camera: Camera, *, radius: float | None = N
     if not cache:
         return _fold(sensor, camera, *_resolve_geometry(sensor, camera, radius, grid_mm))
     return _fold_cached(sensor, camera, radius, grid_mm)
+
+
+def forget_folded_weights() -> None:
+    """Forget the folded weights :func:`fold_regions` keeps in memory (not the files of the cache folder).
+
+    The next :func:`fold_regions` of a sensor and camera loads them from the
+    cache folder, or folds them again when that is off: what a new process
+    would do (the precompute benchmark times both).
+    """
+    _fold_cached.cache_clear()
 
 
 def deferred_grids(sensor: DomeSensor, camera: Camera, radius: float, grid_mm: float) -> RegionGrids:

@@ -433,12 +433,12 @@ def reading_errors(pipeline, frames, noise: PixelNoise, readings=None) -> Readin
         raise InputError(f"reading errors need a pipeline without a filter (its pixels' noise is "
                          f"independent), got filter={pipeline.filter!r}")
     stack, single = check_frames(frames, pipeline.camera)
-    pipeline._check_scale(stack, "frames")
+    pipeline.check_scale(stack, "frames")
     if readings is None:
         readings = pipeline.process(stack)
     fold = pipeline.region_weights
     n_ent, n_el, t_n = len(fold.pixel), len(fold.n_pixels), stack.shape[0]
-    level = pipeline._level(stack.dtype)[0]
+    level = pipeline.lit_levels(stack.dtype)
     g = np.take(stack.reshape(t_n, -1), fold.pixel, axis=1)
     idx = np.flatnonzero(g > level)
     e = idx % n_ent

@@ -48,7 +48,7 @@ def element_clusters(diff: np.ndarray, spots: Spots, sensor: DomeSensor, camera:
     import cv2
     from scipy.sparse.csgraph import connected_components
 
-    from optitact.optics.dome_optics import dome_from_pixel
+    from optitact.optics.camera import dome_from_pixel
 
     m = len(spots.energy)
     pts = (dome_from_pixel(spots.centroid, sensor=sensor, camera=camera, outside="nan") if m

@@ -184,7 +184,7 @@ def _cone_points(sensor: DomeSensor, elements: np.ndarray, offsets: np.ndarray |
 def _predict(sensor: DomeSensor, camera: Camera, elements: np.ndarray,
              offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Predicted cluster centroids (n, 2) and ring RMS radii (n,) in pixels; NaN where a cone is not seen."""
-    from optitact.optics.dome_optics import pixel_from_dome
+    from optitact.optics.camera import pixel_from_dome
 
     px = pixel_from_dome(_cone_points(sensor, elements, offsets), sensor=sensor, camera=camera, outside="nan")
     cen = px.mean(axis=1)

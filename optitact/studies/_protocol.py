@@ -19,7 +19,6 @@ import numpy as np
 from optitact._validate import seed_value
 from optitact.errors import InputError
 
-__all__ = ["SIZES", "Study", "get", "jsonable", "key_figures", "names", "run", "save_plot", "study_seeds"]
 
 #: Study sizes: ``quick`` runs in seconds (tests, notebooks), ``full`` is the published protocol.
 SIZES = ("quick", "full")

@@ -274,7 +274,7 @@ def _reading_errors(fset, readings, noise):
     from optitact.pipeline.frame_pipeline import Pipeline
     from optitact.pipeline.uncertainty import reading_errors
 
-    if not fset.attrs.get("keep_frames") or "frames" not in fset._group:
+    if not fset.attrs.get("keep_frames") or not fset.has_array("frames"):
         print(f"optitact: bench accuracy: {fset.path} holds no frames; no coverage_90", file=sys.stderr)
         return None
     pipe = Pipeline(fset.sensor, fset.camera, baseline=fset.array("baseline"), **fset.attrs.get("pipeline", {}))

@@ -64,7 +64,7 @@ def _start_up(sensor, camera, baseline, frame, *, repeats: int, startup: bool = 
     from optitact.pipeline.frame_pipeline import Pipeline
 
     def build(cache: bool) -> float:
-        regions._fold_cached.cache_clear()
+        regions.forget_folded_weights()
         old = os.environ.get("OPTITACT_PRECOMPUTE_CACHE")
         os.environ["OPTITACT_PRECOMPUTE_CACHE"] = "1" if cache else "0"
         try:

@@ -174,7 +174,7 @@ def bench_process(sizes=((640, 480), (1280, 960)), *, codecs=("MJPG",), frames: 
     # the children as a user's shell runs them: bytecode cached (a session may turn caching off),
     # without the OpenBLAS setting this command line made for itself
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    if cli._BLAS_THREADS_SET:
+    if cli.BLAS_THREADS_SET:
         env.pop("OPENBLAS_NUM_THREADS", None)
     tuned_env = env | {"OPENBLAS_NUM_THREADS": "1"}
     rows = {}

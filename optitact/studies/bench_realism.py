@@ -37,7 +37,7 @@ no pose. Then, per stand-in:
    fitted as the shipped one is: the joint model when it has one).
 
 Each is scored on the same held-out frames (independent loads on every
-element, ``calib.sets.design_forces`` with seeds no other step uses) with
+element, ``calib.patterns.design_forces`` with seeds no other step uses) with
 :func:`optitact.calib.held_out.press_report` (RMSE in % of full scale).
 """
 
@@ -321,8 +321,8 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
     """
     from optitact.calib.fit import Calibration
     from optitact.calib.shipped import default_calibration
-    from optitact.calib.patterns import pattern_forces
-    from optitact.calib.sets import Design, design_forces
+    from optitact.calib.patterns import design_forces, pattern_forces
+    from optitact.calib.sets import Design
     from optitact.pipeline.frame_pipeline import Pipeline
     from optitact.errors import RegistrationError
     from optitact.registration.pose import register

@@ -73,7 +73,7 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     modes : sequence of str
         ``"brute"``: path-traced full frames (the reference method);
         ``"pixels"``: path-traced, only the loaded elements' pixels
-        (:func:`optitact.render.spot_pixels`) over the cached no-load frame;
+        (:func:`optitact.render.pathtrace.spot_pixels`) over the cached no-load frame;
         ``"adaptive"``: as ``"pixels"``, with passes until every loaded
         element's summed radiance reaches a target relative standard error;
         ``"two_stage"``: the two-stage light transport
@@ -132,7 +132,8 @@ def bench_render(spps=(16, 64, 256), *, modes=("brute", "pixels", "adaptive", "t
     from optitact.calib.shipped import default_calibration
     from optitact.optics.ccd import CCD
     from optitact.render.backend import active_variant
-    from optitact.render import render, spot_pixels
+    from optitact.render import render
+    from optitact.render.pathtrace import spot_pixels
     from optitact.render.emission import emission_table
     from optitact.render.background import noload_radiance
 

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from optitact.errors import InputError
-from optitact.studies.noise_sweep import _compact_level, _compact_levels, run
+from optitact.studies.noise_sweep import compact_level, compact_levels, run
 
 __all__ = ["STRESS_TESTS", "bench_stability"]
 
@@ -118,8 +118,8 @@ def bench_stability(*, cases: int = 10_000, seed: int = 0, progress: bool = True
     readings.update(cases=readings["generated"], failures=readings["failed"])
     result = {"cases": sum(c["generated"] for c in per_cat.values()), "failures": sorted(failures),
               "failure_reasons": {k: v[:500] for k, v in sorted(failures.items())[:50]}, "categories": per_cat,
-              "noise_sweep": _compact_levels(sw["levels"]),
-              "nominal": _compact_level(sw["nominal"]) | {"u_efficiency": sw["nominal"]["u_efficiency"],
+              "noise_sweep": compact_levels(sw["levels"]),
+              "nominal": compact_level(sw["nominal"]) | {"u_efficiency": sw["nominal"]["u_efficiency"],
                                                           "G_efficiency": sw["nominal"]["G_efficiency"]},
               "spot": sw["spot"], "flicker": sw["flicker"], "budget": _budget(stress),
               "seconds": {"cases": round(t_cases, 2), "total": round(time.perf_counter() - t0, 2)},

@@ -24,7 +24,7 @@ from optitact.taxels.decoupling import (DecouplingMatrix, axis_ranges, decouple,
                                         repeatability_error)
 from optitact.taxels.fingertip25 import UNIT_PLANE, Fingertip25, force_from_resistance, resistance_law
 from optitact.studies._protocol import Study, study_seeds
-from optitact.studies.fingertip_objects import (OBJECTS, _source, hardness_cues, object_dataset,
+from optitact.studies.fingertip_objects import (OBJECTS, fingertip_source, hardness_cues, object_dataset,
                                                 recognise_objects)
 
 __all__ = ["REPEAT_LEVELS_N", "decoupling_study", "repeated_loadings", "step_response", "run", "draw", "STUDY"]
@@ -81,7 +81,7 @@ def decoupling_study(source: Fingertip25 | None = None, *, n_train: int = 100, n
         (per axis x, y, z) and ``rms_total_n``; ``sample``: up to 100 test
         forces with both estimates.
     """
-    source = _source(source)
+    source = fingertip_source(source)
     n_train = integer(n_train, "n_train", minimum=26)
     n_test = integer(n_test, "n_test", minimum=1)
     fraction = positive(fraction, "fraction")
@@ -120,7 +120,7 @@ def repeated_loadings(source: Fingertip25 | None = None, *, levels_n=REPEAT_LEVE
     ndarray
         (n_cycles, len(levels_n), 8), N.
     """
-    source = _source(source)
+    source = fingertip_source(source)
     lv = finite(real_array(levels_n, "levels_n"), "levels_n")
     if lv.ndim != 1 or lv.size < 1 or lv.min() <= 0:
         raise InputError(f"levels_n must be a non-empty 1-D array of forces > 0, got {levels_n!r}")
@@ -153,7 +153,7 @@ def step_response(source: Fingertip25 | None = None, *, unit_force_n: float = 4.
         JSON-serialisable: ``t63_load_ms``, ``t90_load_ms``, ``t63_unload_ms``,
         ``t90_unload_ms``, and the trace ``t_s``, ``force_n`` (every 10th sample).
     """
-    source = _source(source)
+    source = fingertip_source(source)
     level = positive(unit_force_n, "unit_force_n")
     rate = positive(rate_hz, "rate_hz")
     quiet = Fingertip25(dataclasses.replace(source.config, noise_n=0.0, repeatability=0.0))

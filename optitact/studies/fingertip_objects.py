@@ -23,8 +23,8 @@ from optitact._validate import finite, integer, positive, real_array, seed_value
 from optitact.errors import InputError, ShapeError
 from optitact.taxels.fingertip25 import Fingertip25, force_from_resistance
 
-__all__ = ["GraspObject", "OBJECTS", "FINGERS", "RIGID_STIFFNESS_N_PER_MM", "grasp", "ObjectDataset",
-           "object_dataset", "hidden_units", "recognise_objects", "hardness_cues"]
+__all__ = ["fingertip_source", "GraspObject", "OBJECTS", "FINGERS", "RIGID_STIFFNESS_N_PER_MM", "grasp",
+           "ObjectDataset", "object_dataset", "hidden_units", "recognise_objects", "hardness_cues"]
 
 #: The hand's fingers, in feature order (25 units each).
 FINGERS = ("thumb", "index", "middle", "ring", "little")
@@ -188,7 +188,7 @@ def grasp(obj, *, seed: int | None = None, force_n: float | None = None, source:
     and are decoded with :func:`force_from_resistance`.
     """
     obj = _object(obj)
-    source = _source(source)
+    source = fingertip_source(source)
     j = positive(jitter, "jitter", allow_zero=True)
     if force_n is not None:
         force_n = positive(force_n, "force_n", allow_zero=True)
@@ -221,7 +221,7 @@ def _grasp(obj: GraspObject, rng: np.random.Generator, force_n: float | None, so
     return dec[-max(1, n_hold // 3):].mean(axis=0).reshape(-1), float(total)
 
 
-def _source(source) -> Fingertip25:
+def fingertip_source(source) -> Fingertip25:
     """``source``, or ``Fingertip25()`` for None."""
     if source is None:
         return Fingertip25()
@@ -305,7 +305,7 @@ def object_dataset(*, n_per_object: int, seed: int | None = None, objects=OBJECT
     if len(objs) < 2 or len({o.name for o in objs}) != len(objs):
         raise InputError(f"objects must be at least 2 objects with distinct names, "
                          f"got {[o.name for o in objs]}")
-    source = _source(source)
+    source = fingertip_source(source)
     j = positive(jitter, "jitter", allow_zero=True)
     seeds = np.random.SeedSequence(seed_value(seed)).generate_state(n * len(objs))
     label = np.repeat(np.arange(len(objs)), n)
@@ -424,7 +424,7 @@ def hardness_cues(*, forces_n=(2.0, 5.0, 10.0, 20.0), n_grasps: int = 3, seed: i
         raise InputError(f"forces_n must be a 1-D array of at least 2 forces >= 0, got {forces_n!r}")
     n_grasps = integer(n_grasps, "n_grasps", minimum=1)
     objs = tuple(_object(o) for o in objects)
-    source = _source(source)
+    source = fingertip_source(source)
     seeds = np.random.SeedSequence(seed_value(seed)).generate_state(len(objs) * f.size * n_grasps)
     on = 0.5 * source.config.force_low_n
     out = {"forces_n": f.tolist(), "objects": {}}

@@ -29,8 +29,8 @@ from optitact.pipeline.frame_pipeline import Pipeline
 from optitact.optics.sensor import DomeSensor
 from optitact.studies._protocol import Study
 
-__all__ = ["FLICKER_TARGETS", "NOMINAL_LOAD_N", "NOMINAL_WIDTH_MM", "STUDY", "SWEEP_FACTORS", "flicker_check",
-           "noise_sweep", "nominal_energy", "run"]
+__all__ = ["compact_level", "compact_levels", "FLICKER_TARGETS", "NOMINAL_LOAD_N", "NOMINAL_WIDTH_MM",
+           "STUDY", "SWEEP_FACTORS", "flicker_check", "noise_sweep", "nominal_energy", "run"]
 
 #: Signal levels of the noise sweep, as multiples of the nominal spot's energy.
 SWEEP_FACTORS = (1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0, 2.0, 4.0)
@@ -415,7 +415,8 @@ def _round(x, n=4):
     return float(f"{x:.{n}g}")
 
 
-def _compact_level(lv: dict) -> dict:
+def compact_level(lv: dict) -> dict:
+    """One noise level of :func:`run`'s result, reduced to the figures ``bench stability`` reports (rounded)."""
     out = {"signal_factor": lv["signal_factor"], "snr": _round(lv["snr"]), "electrons": _round(lv["electrons"]),
            "contact_rate": _round(lv["contact_rate"])}
     if "G" in lv:
@@ -426,8 +427,9 @@ def _compact_level(lv: dict) -> dict:
     return out
 
 
-def _compact_levels(levels: list[dict]) -> list[dict]:
-    return [_compact_level(lv) for lv in levels]
+def compact_levels(levels: list[dict]) -> list[dict]:
+    """:func:`compact_level` of each level."""
+    return [compact_level(lv) for lv in levels]
 
 
 # ============================================================================ the study

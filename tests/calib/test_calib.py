@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from optitact.calib.document import CalibrationMismatchError
 from optitact.calib.fit import Calibration, fit
-from optitact.calib.sets import CalibrationSet, Design, design_forces, generate
+from optitact.calib.patterns import design_forces
+from optitact.calib.sets import CalibrationSet, Design, generate
 
 import optitact
 from optitact.cli import main

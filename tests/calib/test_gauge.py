@@ -201,7 +201,8 @@ def test_a_line_over_128_kib_is_refused(tmp_path, line):
 def presses(tmp_path_factory):
     """Frames of a stand-in 10 % brighter than the model: a no-load frame and 5 mixed-load frames (every
     element pressed), rendered two-stage with the shipped emission table; and their forces (N)."""
-    from optitact.calib.sets import Design, design_forces
+    from optitact.calib.patterns import design_forces
+    from optitact.calib.sets import Design
     from optitact.calib.shipped import default_calibration
     from optitact.render import render
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from optitact.calib.patterns import FAMILIES, PATTERNS, pattern_forces
-from optitact.calib.sets import Design, design_forces
+from optitact.calib.patterns import FAMILIES, PATTERNS, design_forces, pattern_forces
+from optitact.calib.sets import Design
 
 from optitact.optics.sensor import DomeSensor
 

@@ -283,7 +283,8 @@ def test_cli_fit_and_test_on_rendered_presses(tmp_path, capsys):
     refines the shipped calibration to within 3 % FS per axis on the held-out frames (0.3 % in Fz),
     below the shipped calibration unrefined (3.3-5.6 %); `calibrate test --json` reports it;
     from scratch 9 presses fit too."""
-    from optitact.calib.sets import Design, design_forces
+    from optitact.calib.patterns import design_forces
+    from optitact.calib.sets import Design
     from optitact.render import render
 
     from optitact.cli import main

@@ -153,7 +153,8 @@ def test_cli_refinement_reports_what_it_kept_and_does_not_lose_to_the_start(user
     refinement (the same figures as the file's provenance), warns that 2 presses cannot tell a centroid
     shift, and `calibrate test` on a third frame finds it better than the shipped calibration in Fz and
     no worse in shear."""
-    from optitact.calib.sets import Design, design_forces
+    from optitact.calib.patterns import design_forces
+    from optitact.calib.sets import Design
     from optitact.render import render
 
     from optitact.io.files import write_png

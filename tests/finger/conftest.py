@@ -21,8 +21,6 @@ def tiny_chain(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def quick_result():
-    """``optitact.studies.run("finger", seed=0, size="quick")`` (about two minutes, cached for the notebook)."""
-    from optitact import studies
-
-    return studies.run("finger", seed=0, size="quick")
+def quick_result(finger_quick_study):
+    """The quick finger study (the root conftest's ``finger_quick_study``, shared with the notebook)."""
+    return finger_quick_study

@@ -15,7 +15,7 @@ import optitact.pipeline.frame_pipeline
 from optitact.errors import InputError, ShapeError
 from optitact.optics.camera import FisheyeCamera
 from optitact.optics.contact import TIP_MARGIN, Contacts, cone_loads, contact_patches
-from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.camera import pixel_from_dome
 from optitact.optics.sensor import DomeSensor
 
 N = 41
@@ -485,8 +485,8 @@ _Z = np.zeros((41, 3))
     (lambda: optitact.optics.force_frames.local_from_global("dome", _Z), "sensor"),
     (lambda: pixel_from_dome(_S.element_positions[:2], sensor="dome", camera=_CAM), "sensor"),
     (lambda: pixel_from_dome(_S.element_positions[:2], sensor=_S, camera="cam"), "camera"),
-    (lambda: optitact.optics.dome_optics.dome_from_pixel([[30.0, 40.0]], sensor="dome", camera=_CAM), "sensor"),
-    (lambda: optitact.optics.dome_optics.dome_from_pixel([[30.0, 40.0]], sensor=_S, camera="cam"), "camera"),
+    (lambda: optitact.optics.camera.dome_from_pixel([[30.0, 40.0]], sensor="dome", camera=_CAM), "sensor"),
+    (lambda: optitact.optics.camera.dome_from_pixel([[30.0, 40.0]], sensor=_S, camera="cam"), "camera"),
     (lambda: _CAM.max_polar_angle("dome"), "sensor"),
     (lambda: _CAM.dome_mask("dome"), "sensor"),
     (lambda: optitact.pipeline.regions.split_regions("dome", _CAM), "sensor"),

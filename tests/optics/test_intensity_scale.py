@@ -21,7 +21,7 @@ from optitact.calib.shipped import DEFAULT_CALIBRATION, default_calibration
 import optitact
 from optitact.errors import InputError
 from optitact.optics.ccd import CCD, IntensityScale, dn_ratio
-from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.camera import pixel_from_dome
 from optitact.pipeline.frame_pipeline import Pipeline
 from optitact.pipeline.imageops import noise_from_one_frame
 

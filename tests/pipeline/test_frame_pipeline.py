@@ -788,7 +788,7 @@ def test_replacing_how_a_pipeline_runs_copies_it_without_measuring_again(small, 
     for changes in ({"kernel": "numpy"}, {"threads": 1}, {"kernel": "auto", "threads": 2}):
         assert changes.keys() <= RUN_OPTIONS
         other = pipe.replace(**changes)
-        assert other is not pipe and other._levels is not pipe._levels
+        assert other is not pipe and other.fast_path is not pipe.fast_path
         assert other.noise_map is pipe.noise_map and other.entry_threshold is pipe.entry_threshold
         assert other.floor is pipe.floor  # not made again
         fresh = Pipeline(SENSOR, SMALL, baseline=base.astype(np.uint8), **changes)

@@ -123,21 +123,21 @@ def test_chunks_cover_every_entry_once(n_pixels):
     rng = np.random.default_rng(n_pixels)
     pixel = np.sort(rng.integers(0, n_pixels, 3 * n_pixels // 4))  # repeats: pixels shared by regions
     level = rng.integers(0, 200, n_pixels).astype(np.uint8)[pixel]  # a pixel's level (its baseline + threshold)
-    cpix, centry, clevel, more = _kernel.chunks(pixel, level, n_pixels)
-    assert np.all(cpix >= 0) and np.all(cpix + _kernel.CHUNK <= n_pixels)
+    chunk_start, slot_entry, slot_level, next_same_pixel = _kernel.chunks(pixel, level, n_pixels)
+    assert np.all(chunk_start >= 0) and np.all(chunk_start + _kernel.CHUNK <= n_pixels)
     seen = []
-    for slot in np.flatnonzero(centry >= 0):
+    for slot in np.flatnonzero(slot_entry >= 0):
         k, j = divmod(slot, _kernel.CHUNK)
-        i = centry[slot]
+        i = slot_entry[slot]
         while True:  # the kernel's walk over a shared pixel's entries
-            assert pixel[i] == cpix[k] + j
+            assert pixel[i] == chunk_start[k] + j
             seen.append(i)
-            if not more[i]:
+            if not next_same_pixel[i]:
                 break
             i += 1
-        assert clevel[slot] == level[centry[slot]]
+        assert slot_level[slot] == level[slot_entry[slot]]
     assert sorted(seen) == list(range(len(pixel)))  # each entry once
-    assert np.all(clevel[centry < 0] == 255)  # nothing is greater than the dtype's top
+    assert np.all(slot_level[slot_entry < 0] == 255)  # nothing is greater than the dtype's top
     with pytest.raises(ValueError, match="share its lit level"):
         _kernel.chunks(np.array([3, 3]), np.array([1, 2], np.uint8), n_pixels)
 

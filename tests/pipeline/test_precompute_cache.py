@@ -27,7 +27,7 @@ def cache(tmp_path, monkeypatch):
     """A fresh, empty cache folder; the in-memory copies forgotten; counts the folds."""
     monkeypatch.setenv("OPTITACT_CACHE_DIR", str(tmp_path))
     monkeypatch.delenv("OPTITACT_PRECOMPUTE_CACHE", raising=False)
-    regions._fold_cached.cache_clear()
+    regions.forget_folded_weights()
     calls = []
     fold = regions._fold
 
@@ -37,7 +37,7 @@ def cache(tmp_path, monkeypatch):
 
     monkeypatch.setattr(regions, "_fold", counted)
     yield tmp_path / "precompute", calls
-    regions._fold_cached.cache_clear()
+    regions.forget_folded_weights()
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,7 @@ def _same(a, b):
 
 
 def _from_disk():
-    regions._fold_cached.cache_clear()
+    regions.forget_folded_weights()
     return fold_regions(SENSOR, CAM)
 
 
@@ -140,11 +140,11 @@ def test_pipeline_readings_identical_cold_and_cached_and_grids_deferred(cache, m
     rng = np.random.default_rng(3)
     frames = rng.integers(0, 40, (3,) + CAM.shape).astype(np.uint8)
     monkeypatch.setenv("OPTITACT_PRECOMPUTE_CACHE", "0")
-    regions._fold_cached.cache_clear()
+    regions.forget_folded_weights()
     cold = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, kernel="numpy").process(frames)
     monkeypatch.delenv("OPTITACT_PRECOMPUTE_CACHE")
     optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM)  # writes the file
-    regions._fold_cached.cache_clear()
+    regions.forget_folded_weights()
     pipe = optitact.pipeline.frame_pipeline.Pipeline(SENSOR, CAM, kernel="numpy")  # reads it
     assert len(calls) == 2
     warm = pipe.process(frames)

@@ -322,7 +322,7 @@ def test_reading_errors_add_the_lit_variance_to_every_lit_pixel(spot):
     # var G is sum a^2 sigma_p^2 over the lit pixels: c adds c * sum a^2 (the same pixels are lit)
     fold = pipe.region_weights
     g = frame.reshape(-1)[fold.pixel].astype(np.float64)
-    lit = (g > pipe._level(frame.dtype)[0]) & (fold.label == 0)
+    lit = (g > pipe.lit_levels(frame.dtype)) & (fold.label == 0)
     added = 3.0 * np.sum(fold.weights[0][lit] ** 2) / pipe.dn_ratio**2
     assert with_c.cov[0, 0, 0] - without.cov[0, 0, 0] == pytest.approx(added, rel=1e-9)
     diag = [np.diagonal(e.cov[0], axis1=-2, axis2=-1) for e in (with_c, without)]
@@ -356,6 +356,6 @@ def test_the_photon_transfer_exponent_is_measured_when_asked_and_used_by_reading
     err = reading_errors(pipe, frame, PixelNoise(0.05, 0.2, exponent=0.7))
     fold = pipe.region_weights
     v = frame.reshape(-1)[fold.pixel].astype(np.float64) - pipe.entry_baseline
-    lit = (frame.reshape(-1)[fold.pixel] > pipe._level(frame.dtype)[0]) & (fold.label == 0)
+    lit = (frame.reshape(-1)[fold.pixel] > pipe.lit_levels(frame.dtype)) & (fold.label == 0)
     direct = np.sum(fold.weights[0][lit] ** 2 * (0.2**2 + 0.05 * np.maximum(v[lit], 0.0) ** 0.7))
     assert err.cov[0, 0, 0] == pytest.approx(direct / pipe.dn_ratio**2, rel=1e-9)

@@ -23,7 +23,7 @@ from optitact.errors import RegistrationError, ShapeError
 from optitact.optics.camera import camera_from_dict, rotation_from_rvec
 from optitact.optics.camera_models import OpenCVFisheyeCamera, pose_from_position
 from optitact.optics.contact import contact_patches
-from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.camera import pixel_from_dome
 from optitact.optics.sensor import DomeSensor
 from optitact.registration.pose import Registration, RegistrationWarning, register
 from optitact.registration.spots import detect_spots

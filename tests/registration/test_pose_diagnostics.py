@@ -19,7 +19,7 @@ from test_pose import NOMINAL, PRESSES, SENSOR, H, W, _spot, frames, pose_error,
 from optitact.errors import InputError, KindError
 from optitact.optics.camera_models import PinholeCamera
 from optitact.optics.contact import contact_patches
-from optitact.optics.dome_optics import pixel_from_dome
+from optitact.optics.camera import pixel_from_dome
 from optitact.optics.sensor import DomeSensor
 from optitact.registration.pose import RegistrationWarning, register
 

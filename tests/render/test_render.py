@@ -11,7 +11,8 @@ import sys
 
 import numpy as np
 import pytest
-from optitact.render import pass_seeds, render, render_contacts
+from optitact.render import render, render_contacts
+from optitact.render.pathtrace import pass_seeds
 from optitact.render.backend import PREFERRED_VARIANTS, active_variant, find_libllvm, select_variant
 from optitact.render.scene import RenderSettings
 
@@ -52,7 +53,7 @@ def centroid(img, crop):
 def patch_spot(camera, point):
     """The intensity centroid (row, col) of a 0.25 mm patch at a dome point (256 spp, over the empty
     frame), and ``pixel_from_dome`` of the point."""
-    px = optitact.optics.dome_optics.pixel_from_dome(point, sensor=SENSOR, camera=camera)
+    px = optitact.optics.camera.pixel_from_dome(point, sensor=SENSOR, camera=camera)
     crop = window(px, 10)
     spot = render_contacts(SENSOR, single_patch(point, 0.25), camera=camera, spp=256, seed=7,
                            crop=crop).astype(np.float64)
@@ -217,7 +218,7 @@ def noload_bg():
 
 
 def test_spot_pixels_are_the_loaded_regions():
-    from optitact.render import spot_pixels
+    from optitact.render.pathtrace import spot_pixels
 
     from optitact.pipeline.frame_pipeline import Pipeline
 
@@ -234,7 +235,7 @@ def test_spot_pixels_are_the_loaded_regions():
 def test_pixel_rendering_matches_full_frames_within_noise(noload_bg):
     """Readings of frames rendered only at the spot pixels (over a no-load background) agree with
     full-frame renders in the mean over seeds, within 4 combined standard errors."""
-    from optitact.render import spot_pixels
+    from optitact.render.pathtrace import spot_pixels
 
     from optitact.pipeline.frame_pipeline import Pipeline
 
@@ -257,7 +258,7 @@ def test_pixel_rendering_matches_full_frames_within_noise(noload_bg):
 
 
 def test_pixel_rendering_inputs(noload_bg):
-    from optitact.render import spot_pixels
+    from optitact.render.pathtrace import spot_pixels
 
     mask = spot_pixels(SENSOR, PIX_CAM, PIX_LOAD)
     empty = render(SENSOR, PIX_LOAD, camera=PIX_CAM, spp=1, pixels=np.zeros(PIX_CAM.shape, bool),
@@ -293,7 +294,7 @@ def test_full_output_returns_what_the_render_measured():
 
 def test_instanced_shell_renders_the_same_scene(monkeypatch):
     """A light render (instanced shell) equals the flat scene's render up to intersection rounding."""
-    import optitact.render as R
+    import optitact.render.pathtrace as R
 
     forces = np.zeros((SENSOR.n_elements, 3))
     forces[[0, 3, 12], 2] = [0.6, 0.4, 0.3]

@@ -1,7 +1,7 @@
 """Rendering with any camera model: the ray-table sensor plugin (tiny renders and crop windows only).
 
 The independent truths: the closed-form projection through the dome
-(:func:`optitact.optics.dome_optics.pixel_from_dome`, itself checked against OpenCV's
+(:func:`optitact.optics.camera.pixel_from_dome`, itself checked against OpenCV's
 ``projectPoints``), the exact rays of :meth:`Camera.ray_from_pixel`, and the
 closed-form equidistant plugin for a model that equals it.
 """
@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from optitact.render import render, spot_pixels
+from optitact.render import render
+from optitact.render.pathtrace import spot_pixels
 from optitact.render.rays import corner_rays, interpolate_rays
 from test_render import PIX_LOAD, dome_point, patch_spot, single_patch
 
@@ -170,12 +171,12 @@ def tilted_quarter_noload():
 def test_pixel_rendering_matches_full_frames_within_noise(tilted_quarter_noload):
     """Spot pixels rendered packed over a no-load background agree with full frames: per loaded element,
     the summed radiance over the no-load frame within 4 combined standard errors (3 seeds each)."""
-    from optitact.render import _loaded_region_pixels
+    from optitact.render.pathtrace import loaded_region_pixels
 
     cam = quarter(TILTED)
     bg = tilted_quarter_noload
     mask = spot_pixels(SENSOR, cam, PIX_LOAD)
-    pixel, label = _loaded_region_pixels(SENSOR, cam, PIX_LOAD)
+    pixel, label = loaded_region_pixels(SENSOR, cam, PIX_LOAD)
     assert np.unique(label).tolist() == [0, 5, 20]
 
     def sums(img):

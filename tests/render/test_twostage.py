@@ -10,7 +10,8 @@ import math
 
 import numpy as np
 import pytest
-from optitact.render import render, spot_pixels
+from optitact.render import render
+from optitact.render.pathtrace import spot_pixels
 from optitact.render.background import noload_radiance
 from optitact.render.coverage import patch_coverage
 from optitact.render.emission import EmissionTable, band_weights, emission_table
