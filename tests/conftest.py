@@ -52,15 +52,33 @@ def _private_cache(tmp_path_factory, request):
     mp.undo()
 
 
+#: Test files that take longest (tens of seconds each), in the order they start under pytest-xdist
+#: (``--no-loadscope-reorder`` keeps it), one worker each in turn, so that the workers end together. The
+#: notebooks come after the files whose session results they read from the shared cache (the quick finger
+#: and taxel studies, the two-stage tests' small emission table).
+LONGEST_FIRST = ("finger/test_studies.py", "render/test_twostage.py", "test_workflows.py",
+                 "docs/test_sphinx.py",
+                 "taxels/test_study_tracing.py", "taxels/test_study_palpation.py", "taxels/test_study_wire.py",
+                 "taxels/test_study_fingertip.py", "test_notebooks.py", "studies/test_noise_sweep.py",
+                 "registration/test_pose.py", "pipeline/test_distributed.py", "calib/test_calib.py",
+                 "docs/test_guides.py")
+
+
 def pytest_collection_modifyitems(config, items):
     """Run the notebook executions last (stable order otherwise); start the early ones at once.
 
     Under pytest-xdist (``-n 2 --dist loadfile``, the project's default) a file's tests run on one
-    worker, in order, and the notebooks are ordinary tests there: the other worker is the second core.
+    worker, in order, the longest files first (:data:`LONGEST_FIRST`), and the notebooks are ordinary
+    tests there: the other worker is the second core.
     """
     items.sort(key=lambda item: item.get_closest_marker("notebook") is not None)
     if os.environ.get("PYTEST_XDIST_WORKER"):
         config._optitact_early_notebooks = []
+        order = {name: i for i, name in enumerate(LONGEST_FIRST)}
+        tests = pathlib.Path(__file__).resolve().parent
+        rank = {id(item): order.get(pathlib.Path(str(item.fspath)).resolve().relative_to(tests).as_posix(),
+                                     len(order)) for item in items}
+        items.sort(key=lambda item: rank[id(item)])  # stable: the notebooks stay last within their file
         return
     notebooks = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
     config._optitact_early_notebooks = [
