@@ -4,8 +4,8 @@ Build: ``sphinx-build -W --keep-going -b html docs docs/_build/html`` (the ``doc
 extra installs what it needs; ``tests/docs/test_sphinx.py`` runs the same build).
 
 Nothing here reaches the network or executes a notebook: the tutorials are the
-notebooks of ``notebooks/`` shown without outputs (the test suite executes them),
-copied into ``docs/tutorials/`` (git-ignored) when the build starts.
+notebooks of ``notebooks/``, copied into ``docs/tutorials/`` (git-ignored) when the
+build starts, with the outputs of the test suite's last run where it left them.
 """
 
 from __future__ import annotations
@@ -140,15 +140,26 @@ nb_merge_streams = True
 TUTORIALS = DOCS / "tutorials"
 
 
+#: Notebooks as the test suite last executed them, with their outputs (``tests/_notebook_runner.py``).
+EXECUTED = ROOT / "docs" / "_build" / "executed-notebooks"
+
+
 def _copy_notebooks() -> None:
-    """Copy the unexecuted notebooks, naming their language (the tracked ones carry no kernel)."""
+    """Copy the notebooks, naming their language (the tracked ones carry no kernel).
+
+    Where a test run left an executed copy that is newer than the notebook, the copy (with its
+    outputs) is shown; otherwise the unexecuted notebook. Nothing is executed here.
+    """
     for src in sorted((ROOT / "notebooks").glob("[0-9][0-9]_*.ipynb")):
+        done = EXECUTED / src.name
+        if done.is_file() and done.stat().st_mtime >= src.stat().st_mtime:
+            src = done
         nb = json.loads(src.read_text(encoding="utf-8"))
         nb.setdefault("metadata", {}).update({
             "kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"},
             "language_info": {"name": "python", "pygments_lexer": "ipython3"}})
         text = json.dumps(nb, indent=1, ensure_ascii=False) + "\n"
-        dst = TUTORIALS / src.name
+        dst = TUTORIALS / done.name
         if not dst.exists() or dst.read_text(encoding="utf-8") != text:  # unchanged: no rebuild
             dst.write_text(text, encoding="utf-8")
 

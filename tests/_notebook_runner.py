@@ -9,10 +9,26 @@ leave idle); ``tests/test_notebooks.py`` waits for the result. Usage:
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 import sys
 import tempfile
 import traceback
+
+#: Where each test run leaves the notebooks it executed, with their outputs (git-ignored, like the
+#: rest of docs/_build): the documentation build shows these in place of the unexecuted copies.
+EXECUTED = pathlib.Path(__file__).resolve().parents[1] / "docs" / "_build" / "executed-notebooks"
+
+
+def save_executed(nb, name: str) -> None:
+    """Write an executed notebook to :data:`EXECUTED` as ``NAME.ipynb`` (whole, or not at all)."""
+    import nbformat
+
+    EXECUTED.mkdir(parents=True, exist_ok=True)
+    tmp = EXECUTED / f".{name}.{os.getpid()}.tmp"
+    nbformat.write(nb, tmp)
+    tmp.replace(EXECUTED / f"{name}.ipynb")
+
 
 #: Notebooks that read nothing the tests cache: they start with the session, in a background
 #: process beside the tests, and their tests wait for them (the others run last).
@@ -32,7 +48,10 @@ def run(notebook: pathlib.Path) -> dict:
             client.execute()
         except Exception:  # a failing cell: report it; the test shows it
             return {"errors": [traceback.format_exc()]}
-    return {"errors": [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]}
+    errors = [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    if not errors:
+        save_executed(nb, notebook.stem)
+    return {"errors": errors}
 
 
 def main(argv: list[str]) -> None:

@@ -13,7 +13,7 @@ import json
 import pathlib
 
 import pytest
-from _notebook_runner import EARLY_NOTEBOOKS
+from _notebook_runner import EARLY_NOTEBOOKS, save_executed
 
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
@@ -55,3 +55,4 @@ def test_notebook_runs(script, tmp_path, request):
     client.execute()
     errors = [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
     assert not errors
+    save_executed(nb, script.stem)  # the docs' tutorials show it with its outputs
