@@ -46,7 +46,6 @@ from optitact.calib.document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatch
 from optitact.calib.error_model import ErrorModel, validate
 
 __all__ = ["Calibration", "fit"]
-# MIN_RELATIVE_SPREAD, MAX_FILE_BYTES and PIPELINE_KEYS stay importable from here (re-exported above).
 
 
 

@@ -149,10 +149,7 @@ def fit_from_frames(frames: Sequence[str | os.PathLike], forces: str | os.PathLi
 
 def fit_measured(p: Presses, pipeline, *, model, start, forces) -> Calibration:
     """:func:`fit_presses` on measured presses, with the pipeline's sensor, camera, options and scale."""
-    # the region geometry as the pipeline resolved it (the calibration stores it so anyway)
-    geometry = {"radius": pipeline.grids.radius, "grid_mm": pipeline.grids.grid_mm}
-    options = {k: geometry[k] if k in geometry else getattr(pipeline, k)
-               for k in PIPELINE_KEYS if k != "method"}
+    options = {k: v for k, v in pipeline.options().items() if k in PIPELINE_KEYS and k != "method"}
     bits = pipeline.readings_bits or pipeline.bits or 8
     return fit_presses(p.readings, p.forces, pressed=p.pressed, sensor=pipeline.sensor, camera=pipeline.camera,
                        pipeline_options=options, model=model, start=start,

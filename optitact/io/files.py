@@ -7,9 +7,7 @@ this module (:func:`write_json`, :func:`write_png`, :func:`write_npy`,
 it. :func:`json_fingerprint` keys caches and calibration files by their
 settings.
 
-The CSV tables (forces in, readings out) live in :mod:`optitact.io.tables`;
-their names are importable from here too (``from optitact.io.files import
-read_forces_csv, ReadingsWriter``).
+The CSV tables (forces in, readings out) live in :mod:`optitact.io.tables`.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 :class:`OpenCVFisheyeCamera` as ``cv2.fisheye.projectPoints``, with the same
 ``K``, ``D``, ``rvec`` and ``tvec``; :func:`read_opencv_calibration` reads
 OpenCV's calibration output and :func:`camera_from_opencv` takes ``K`` and
-``D`` arrays (both in :mod:`optitact.optics.opencv_files`, importable from here). Both
+``D`` arrays (both in :mod:`optitact.optics.opencv_files`). Both
 models are :class:`optitact.optics.camera.Camera`: every function that
 takes a camera (the pipeline, :func:`optitact.optics.camera.pixel_from_dome`, ...) takes them.
 

@@ -56,8 +56,6 @@ from optitact.pipeline.imageops import (FILTERS, STACK_NOISE, add_clipped_tail, 
                                         readings_from_moments, saturation_level, stack_mean,
                                         subtract_baseline, threshold_sigmas)
 
-# The steps and the region geometry live in optitact.pipeline.imageops and optitact.pipeline.regions; they are
-# re-exported here, where the pipeline's stages are documented.
 __all__ = ["METHODS", "Pipeline"]
 
 METHODS = ("fast", "reference")
@@ -395,7 +393,12 @@ class Pipeline:
             noise.flags.writeable = False
         return b, noise
 
-    def _options(self) -> dict:
+    def options(self) -> dict:
+        """The keyword options this pipeline was made with (the region geometry as given), baseline aside.
+
+        ``Pipeline(sensor, camera, baseline=..., **pipe.options())`` makes the same pipeline;
+        :meth:`replace` and a calibration's stored pipeline options start from it.
+        """
         return dict(method=self.method, filter=self.filter, filter_size=self.filter_size,
                     noise_sigma=self.noise_sigma, k=self.k, min_pixels=self.min_pixels,
                     saturation=self.saturation, bits=self.bits, readings_bits=self.readings_bits,
@@ -464,7 +467,7 @@ class Pipeline:
             out._run_with(changes.get("kernel", self.requested_kernel),
                           changes.get("threads", self.requested_threads))
             return out
-        opts = self._options() | {"baseline": self._baseline_input} | changes
+        opts = self.options() | {"baseline": self._baseline_input} | changes
         if "filter" in changes and "filter_size" not in changes:
             opts["filter_size"] = None
         out = Pipeline(self.sensor, self.camera, **opts)
