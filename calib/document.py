@@ -14,6 +14,10 @@ Schema versions (``schema_version``):
    none. A version-2 document without it is refused; a version-1 document
    still loads as version 1 (without ``u0``, its coupled shear curves read
    ``u0 = 0``, with an :class:`~optitact.errors.OptitactWarning` saying so).
+3. ``elements.shape`` required: each element's own shape
+   (:attr:`Calibration.shape <optitact.calib.fit.Calibration.shape>`, ``(E, 3)``),
+   or ``null``. Earlier versions have none (their curves as they are); a
+   reader of version 2 refuses a version-3 file rather than ignore the shapes.
 """
 
 from __future__ import annotations
@@ -40,9 +44,9 @@ __all__ = ["SCHEMA", "SCHEMA_VERSION", "READ_VERSIONS", "MAX_FILE_BYTES", "PIPEL
 
 SCHEMA = "optitact.calibration"
 #: The schema version written (see the module docstring for what each version holds).
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: The schema versions read.
-READ_VERSIONS = (1, 2)
+READ_VERSIONS = (1, 2, 3)
 #: Largest calibration file read (bytes); a calibration of 41 elements is ~20 kB.
 MAX_FILE_BYTES = 5_000_000
 #: Pipeline options a calibration file may hold.
@@ -239,11 +243,18 @@ def from_document(cls, d, *, source: str | os.PathLike | None = None):
                           f"elements.u0 (a file written before the zero-shear centroid was fitted); loaded "
                           f"as version 1, its shear curves taking u0 = 0. Fit the calibration again to get "
                           f"it", OptitactWarning, stacklevel=3)
+    if version >= 3:
+        if "shape" not in el:
+            raise InputError(f"calibration elements are missing 'shape' (each element's own shape, null when "
+                             f"there is none), which schema version {version} requires")
+        shape = None if el["shape"] is None else arr("shape", (n, 3))
+    else:
+        shape = None
     cal = cls(model, sensor, camera, dict(d["pipeline"]), arr("g", (n, G_TERMS)),
               arr("g_scale", (n,)), arr("f", (n, 2)), arr("u_scale", (n,)),
               arr("g_max", (n,)), arr("u_max", (n,)), arr("gu", (n, 2)),
               residuals, dict(d.get("provenance", {})), intensity, _crosstalk(d.get("crosstalk"), sensor),
-              u0, _error_model(d.get("error_model")))
+              u0, _error_model(d.get("error_model")), shape)
     if np.any(cal.g_scale <= 0) or np.any(cal.u_scale <= 0):
         raise InputError("calibration scales must be > 0")
     if np.any(cal.g_max <= 0) or np.any(cal.u_max <= 0):

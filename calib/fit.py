@@ -38,14 +38,26 @@ from optitact.optics.sensor import DomeSensor
 
 from optitact.calib import propagation
 from optitact.calib.crosstalk import CrossTalk, fit_crosstalk
-from optitact.calib.curves import (G_TERMS, MODELS, fit_element, grey_for_force, normal_force,
+from optitact.calib.curves import (FZ_FLOOR, G_TERMS, MODELS, fit_element, grey_for_force, normal_force,
                                    zero_shear_centroid)
 from optitact.calib.document import STACK_NOISE_UNNAMED
 from optitact.calib.document import (SCHEMA, SCHEMA_VERSION, CalibrationMismatchError, fingerprint,
                                      from_document, read_document, resolved_options)
 from optitact.calib.error_model import ErrorModel, validate
 
-__all__ = ["Calibration", "fit"]
+__all__ = ["Calibration", "fit", "MAX_SHAPE", "SHAPE_REF_N", "TRANSFER_TOLERANCE"]
+
+#: A transferred calibration's error per element beyond its own (1 sigma, a fraction of the force): the
+#: curves were fitted to other elements. Moulded rubber elements differ in stiffness from moulding to
+#: moulding (a spread of +-10 % in the modulus, 6 % rms), and a registration leaves 2 % rms of their
+#: brightness (docs/results/realism.md); together about 6 %.
+TRANSFER_TOLERANCE = 0.06
+
+#: The normal force (N) at which an element's shape exponent leaves its forces unchanged.
+SHAPE_REF_N = 0.5
+#: Largest magnitude of a shape parameter (a factor e^0.5 = 1.65 and an exponent of 0.5): beyond it the
+#: element is not the one the curves describe.
+MAX_SHAPE = 0.5
 
 
 
@@ -93,8 +105,16 @@ class Calibration:
         element's centroid sits off its centre; the shear curve reads ``u -
         u0(Fz)``. None: zero (calibrations made before it existed).
     error_model : ErrorModel or None
-        The calibration's error measured on independent data (:meth:`validated`);
-        :meth:`stderr` adds it instead of the fit residuals. None: not measured.
+        The calibration's error measured on independent data (:meth:`validated`,
+        or the held-out presses of a press fit); :meth:`stderr` adds it instead
+        of the fit residuals. None: not measured.
+    shape : (E, 3) ndarray or None
+        Each element's own departure from the curves' shape
+        (:mod:`optitact.calib.element_shapes`): ``(log_scale, exponent,
+        log_shear)``, the element's forces ``F`` times ``exp(log_scale +
+        exponent l)``, ``l = log(Fz / SHAPE_REF_N)``, and its shear times
+        ``exp(log_shear)`` as well (an element whose rubber is stiffer, softer
+        or more nonlinear than the curves'). None: the curves as they are.
     """
 
     model: str
@@ -114,9 +134,20 @@ class Calibration:
     crosstalk: CrossTalk | None = None
     u0: np.ndarray | None = None
     error_model: ErrorModel | None = None
+    shape: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_type(self.intensity, IntensityScale, "intensity")
+        if self.shape is not None:
+            a = np.array(self.shape, dtype=np.float64)
+            if a.shape != (len(self.g), 3):
+                raise ShapeError(f"shape must have shape {(len(self.g), 3)} (log_scale, exponent, log_shear per "
+                                 f"element), got {a.shape}")
+            if not (np.isfinite(a).all() and np.all(np.abs(a) <= MAX_SHAPE)):
+                raise InputError(f"shape must be finite, each value within +-{MAX_SHAPE:g} (log scales and an "
+                                 f"exponent of the force), got values up to {np.nanmax(np.abs(a)):.3g}")
+            a.flags.writeable = False
+            object.__setattr__(self, "shape", a)
         if self.error_model is not None:
             check_type(self.error_model, ErrorModel, "error_model")
         if self.u0 is not None and np.shape(self.u0) != (len(self.g), 2, 2):
@@ -300,7 +331,8 @@ class Calibration:
                 f"{self.camera.width}x{self.camera.height} camera {self.camera.to_dict()}, "
                 f"got {camera.to_dict()}")
 
-    def transferred(self, sensor: DomeSensor, camera: Camera) -> Calibration:
+    def transferred(self, sensor: DomeSensor, camera: Camera, *,
+                    tolerance: float = TRANSFER_TOLERANCE) -> Calibration:
         """The same curves for another (e.g. a registered) sensor and camera of the same element layout.
 
         G is dewarped onto the dome (grey level x mm^2), so the curves carry
@@ -312,12 +344,23 @@ class Calibration:
         the fingerprint becomes the new sensor's and camera's, and the
         provenance records ``{"transferred_from": <this fingerprint>}``.
 
+        The curves were fitted to other elements than the new sensor's, so
+        their error there is larger than their own: a measured
+        :attr:`error_model` gains ``tolerance`` of the force per element
+        (relative to Fz for Fz, to the shear for Fx and Fy), added in
+        quadrature, so that ``process --stderr`` stays honest before any
+        press is made (:data:`TRANSFER_TOLERANCE`). A calibration fitted to
+        the sensor's own presses then measures its error anew.
+
         Parameters
         ----------
         sensor : DomeSensor
             Same ring counts and cones per element as this calibration's.
         camera : Camera
             Any model (e.g. a registered :class:`optitact.optics.camera_models.OpenCVFisheyeCamera`).
+        tolerance : float
+            The elements' relative error beyond the curves' own (1 sigma, default
+            :data:`TRANSFER_TOLERANCE`); 0 keeps the error model as it is.
 
         Returns
         -------
@@ -355,9 +398,20 @@ class Calibration:
                 f"cannot transfer this calibration (fingerprint {self.fingerprint}): its pipeline options "
                 f"{self.pipeline_options} do not carry over to the new sensor and camera ({exc})") from None
         k = sensor.gains / old.gains
+        tolerance = float(tolerance)
+        if not (np.isfinite(tolerance) and 0.0 <= tolerance < 1.0):
+            raise InputError(f"tolerance must be a fraction in [0, 1), got {tolerance!r}")
+        model = self.error_model
+        if model is not None and tolerance > 0 and (sensor != old or camera != self.camera):
+            tol = np.array([0.0, 0.0, tolerance])
+            model = replace(model, relative=np.hypot(model.relative, tol),
+                            shear=np.hypot(model.shear, tolerance - tol),
+                            source=f"{model.source}; transferred to another sensor: + {100 * tolerance:g} % per "
+                                   f"element")
         return replace(self, sensor=sensor, camera=camera, pipeline_options=options,
-                       g_scale=self.g_scale * k, g_max=self.g_max * k,
-                       provenance={"transferred_from": self.fingerprint, "source_provenance": self.provenance})
+                       g_scale=self.g_scale * k, g_max=self.g_max * k, error_model=model,
+                       provenance={"transferred_from": self.fingerprint, "source_provenance": self.provenance,
+                                   "transfer_tolerance": tolerance})
 
     def forces(self, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
         """Element-local forces from readings, and the clamp flags.
@@ -429,14 +483,28 @@ class Calibration:
         clamped = (G > self.g_max) | over_u
         t = u / self.u_scale[:, None]
         fz = normal_force(self.g, self.g_scale, self.g_max, G, np.sum(t * self.gu, axis=-1))
+        warp = self.shape_factor(fz)
         if self.model == "ohka":
             shear = self.f[:, 0:1] * t + self.f[:, 1:2] * t**3
         else:
             if self.u0 is not None:
                 u = u - zero_shear_centroid(self.u0, fz)
             shear = u * (fz / (self.f[:, 0] + self.f[:, 1] * np.sqrt(fz)))[..., None]
+        if warp is not None:
+            shear = shear * (warp * np.exp(self.shape[:, 2]))[..., None]
+            fz = fz * warp
         return np.concatenate([shear, fz[..., None]], axis=-1), clamped
 
+    def shape_factor(self, fz) -> np.ndarray | None:
+        """What each element's forces are times for its own :attr:`shape`, at curve forces ``fz`` (..., E).
+
+        ``exp(log_scale + exponent l)``, ``l = log(max(Fz, FZ_FLOOR) / SHAPE_REF_N)`` (None without a
+        shape).
+        """
+        if self.shape is None:
+            return None
+        ell = np.log(np.maximum(fz, FZ_FLOOR) / SHAPE_REF_N)
+        return np.exp(self.shape[:, 0] + self.shape[:, 1] * ell)
     def normal_curve(self, u):
         """Every element's normal curve ``G -> Fz`` on its own, at centroid shifts ``u``.
 
@@ -455,7 +523,14 @@ class Calibration:
             ``G (..., E) -> Fz (..., E)`` (N), the Fz of :meth:`per_element_forces`.
         """
         q = np.sum(self.clamped_shift(u)[0] / self.u_scale[:, None] * self.gu, axis=-1)
-        return lambda G: normal_force(self.g, self.g_scale, self.g_max, G, q)
+        if self.shape is None:
+            return lambda G: normal_force(self.g, self.g_scale, self.g_max, G, q)
+
+        def curve(G):
+            fz = normal_force(self.g, self.g_scale, self.g_max, G, q)
+            return fz * self.shape_factor(fz)
+
+        return curve
 
     def clamped_shift(self, u) -> tuple[np.ndarray, np.ndarray]:
         """Centroid shifts held to the fitted range ``|u| <= u_max``, as the curves read them.
@@ -543,6 +618,7 @@ class Calibration:
                 "u_scale": self.u_scale.tolist(), "g_max": self.g_max.tolist(),
                 "u_max": self.u_max.tolist(), "gu": self.gu.tolist(),
                 "u0": None if self.u0 is None else np.asarray(self.u0).tolist(),
+                "shape": None if self.shape is None else self.shape.tolist(),
             },
             "residuals_n": {k: np.asarray(v).tolist() for k, v in self.residuals.items()},
             "provenance": self.provenance,

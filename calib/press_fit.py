@@ -71,9 +71,15 @@ from optitact.calib.document import PIPELINE_KEYS
 from optitact.calib.fit import Calibration
 from optitact.calib.gauge import Presses, check_presses, measure_presses
 
-__all__ = ["EVIDENCE", "GROUPS", "MIN_PRESSES_REFINE", "MIN_PRESSES_SCRATCH", "MIN_PRESSES_TO_TELL",
-           "REFINE_FOLDS", "fit_from_frames", "fit_presses"]
+__all__ = ["EVIDENCE", "GAUGE_NOISE", "GROUPS", "METHODS", "fit_element_shapes", "MIN_PRESSES_REFINE", "MIN_PRESSES_SCRATCH", "MIN_PRESSES_TO_TELL",
+           "REFINE_FOLDS", "fit_from_frames", "fit_presses", "error_model_of_totals", "untransferred"]
 
+#: How a start is refined (:func:`fit_presses`): each element's own shape, or the earlier groups.
+METHODS = ("shapes", "groups")
+#: The gauge's noise, a fraction of the force it reads.
+GAUGE_NOISE = 0.01
+#: The smallest floor (N) of an error model fitted to held-out presses.
+MIN_FLOOR_N = 1e-4
 #: Presses per element a fit from scratch needs (``Calibration.fit``'s usable-sample minimum).
 MIN_PRESSES_SCRATCH = 8
 #: Presses per element a refinement of a starting calibration needs (else the element keeps its curves).
@@ -147,12 +153,12 @@ def fit_from_frames(frames: Sequence[str | os.PathLike], forces: str | os.PathLi
     return fit_measured(p, pipeline, model=model, start=start, forces=forces)
 
 
-def fit_measured(p: Presses, pipeline, *, model, start, forces) -> Calibration:
+def fit_measured(p: Presses, pipeline, *, model, start, forces, method: str = "shapes") -> Calibration:
     """:func:`fit_presses` on measured presses, with the pipeline's sensor, camera, options and scale."""
     options = {k: v for k, v in pipeline.options().items() if k in PIPELINE_KEYS and k != "method"}
     bits = pipeline.readings_bits or pipeline.bits or 8
     return fit_presses(p.readings, p.forces, pressed=p.pressed, sensor=pipeline.sensor, camera=pipeline.camera,
-                       pipeline_options=options, model=model, start=start,
+                       pipeline_options=options, model=model, start=start, method=method,
                        intensity=start.intensity if start is not None else IntensityScale(bits=bits),
                        provenance={"frames": len(p.sources), "forces": str(forces),
                                    "presses": int(p.pressed.sum())})
@@ -180,7 +186,8 @@ def _elements(ids, counts) -> str:
 def fit_presses(readings: Readings, forces, *, pressed=None, sensor: DomeSensor, camera,
                 pipeline_options: dict | None = None, model: str | None = None, start=None,
                 intensity: IntensityScale | None = None, provenance: dict | None = None,
-                seed: int = 0) -> Calibration:
+                seed: int = 0, method: str = "shapes", gauge_noise: float = GAUGE_NOISE,
+                extra=None) -> Calibration:
     """Fit a calibration to readings of measured presses, from scratch or refining ``start``.
 
     Parameters
@@ -218,6 +225,22 @@ def fit_presses(readings: Readings, forces, *, pressed=None, sensor: DomeSensor,
         element and the held-out figures, see the module docstring).
     seed : int
         Of the refinement's folds (the same presses and seed give the same calibration).
+    method : {"shapes", "groups"}
+        How a start is refined. ``"shapes"`` (default): every element's own
+        curve shape, shrunk toward the start by a hierarchical prior whose
+        strength the presses' cross-validation chooses
+        (:mod:`optitact.calib.element_shapes`); the held-out predictions give
+        the calibration its :class:`~optitact.calib.error_model.ErrorModel`,
+        so ``process --stderr`` is honest with no validation step.
+        ``"groups"``: the earlier refinement (a gain, a shear scale and a
+        centroid shift per element, each kept where it beats the start; see
+        the module docstring).
+    gauge_noise : float
+        The gauge's noise, a fraction of the force it reads (default 1 %):
+        weighs the presses against each other and against force/torque frames.
+    extra : Observations, optional
+        ``"shapes"`` only: more observations fitted with the presses (e.g.
+        force/torque frames, :func:`optitact.calib.element_shapes.wrench_observations`).
 
     Raises
     ------
@@ -266,6 +289,12 @@ def fit_presses(readings: Readings, forces, *, pressed=None, sensor: DomeSensor,
                          f"{readings.n_elements}")
     if start.sensor != sensor or start.camera != camera:  # e.g. the shipped one, for a registered sensor
         start = start.transferred(sensor, camera)
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}")
+    if method == "shapes":
+        return fit_element_shapes(start, readings, f, usable, n_press, sensor=sensor, camera=camera,
+                                  intensity=intensity, provenance=prov, seed=integer(seed, "seed", minimum=0),
+                                  gauge_noise=gauge_noise, extra=extra)
     return _refine(start, readings, f, usable, n_press, sensor=sensor, camera=camera, intensity=intensity,
                    provenance=prov, seed=integer(seed, "seed", minimum=0))
 
@@ -499,3 +528,108 @@ def _warn_refinement(fit_el, n_press, too_few, active, logk, logc, counts) -> No
                           f"the refinement allows ({BOUNDS[0]:g} to {BOUNDS[1]:g}): the gauge's forces are far "
                           f"from what the start reads; check the gauge's units (the header, e.g. 'Fz (mN)'), "
                           f"element numbers and frame_of_reference", OptitactWarning, stacklevel=4)
+
+
+def fit_element_shapes(start: Calibration, readings: Readings, f, usable, n_press, *, sensor, camera, intensity,
+                       provenance, seed, gauge_noise=GAUGE_NOISE, extra=None) -> Calibration:
+    """The ``"shapes"`` refinement of :func:`fit_presses` (see there), with its cross-validated error model."""
+    from optitact.calib.element_shapes import (PARAMETERS, Observations, fit_shapes, press_observations,
+                                               shaped)
+    from optitact.calib.error_model import MIN_SAMPLES, ErrorModel
+
+    n_el = readings.n_elements
+    t_idx, e_idx = np.nonzero(usable)
+    truth = f[t_idx, e_idx]
+    est0 = replace(start, shape=None).forces(readings)[0]
+    noise = float(gauge_noise) * np.abs(truth)  # each component read to gauge_noise of itself
+    obs = press_observations(start, readings, f, t_idx, e_idx, noise)
+    fit = fit_shapes(start, Observations.concatenate([obs, extra]), seed=seed)
+    cal = shaped(start, fit.theta, sensor=sensor, camera=camera)
+    held = fit.held_out[:len(t_idx)]
+    res_cells = held - truth
+    if len(t_idx) >= MIN_SAMPLES:  # the presses' own held-out errors
+        # beside the gauge's own noise: the error bars are of the true force, not of the gauge's reading
+        error_model = ErrorModel.fit(res_cells, noise, held[:, 2],
+                                     np.hypot(held[:, 0], held[:, 1]), element=e_idx,
+                                     element_group=sensor.element_ring,
+                                     source=f"{len(t_idx)} presses, held out ({FOLDS_NOTE})")
+        # few presses can put all of their scatter down to the gauge: an error bar is never 0
+        error_model = replace(error_model, floor_n=np.maximum(error_model.floor_n, MIN_FLOOR_N))
+    elif extra is not None and start.error_model is not None:  # the curves' own, scaled to the totals
+        rows = slice(len(obs.value), None)
+        own = untransferred(start.error_model, start.provenance.get("transfer_tolerance", 0.0))
+        error_model = error_model_of_totals(own, fit.held_out_obs[rows] - extra.value, extra.model_var,
+                                            extra.noise_var,
+                                            source=f"{extra.n_units} force/torque frames, held out ({FOLDS_NOTE})")
+    else:
+        error_model = None
+    est, _ = cal.forces(readings)
+    res = {k: np.zeros(n_el) for k in ("fx", "fy", "fz")}
+    res["n"] = np.zeros(n_el, int)
+    for e in range(n_el):
+        m = usable[:, e]
+        if m.any():
+            err = est[m, e] - f[m, e]
+            res["fx"][e], res["fy"][e], res["fz"][e] = np.sqrt(np.mean(err**2, axis=0))
+            res["n"][e] = int(m.sum())
+    pinned = {p: np.flatnonzero(fit.pinned[:, i]).tolist() for i, p in enumerate(PARAMETERS)
+              if i < (len(PARAMETERS) if start.model == "coupled" else 3)}
+    prov = provenance | {"fit": "shapes", "start": start.fingerprint, "start_provenance": start.provenance,
+                         "strength": fit.strength, "cv_scores": fit.scores, "pinned": pinned,
+                         "normal_curve_pinned": np.flatnonzero(fit.pinned[:, 0] & fit.pinned[:, 1]).tolist(),
+                         "theta": {p: fit.theta[:, i].round(6).tolist() for i, p in enumerate(PARAMETERS)},
+                         "held_out": {"samples": int(len(t_idx)), "folds": FOLDS_NOTE, "seed": seed,
+                                      **({"rmse_n": {"start": _rmse(est0[t_idx, e_idx] - truth),
+                                                     "refined": _rmse(res_cells)}} if len(t_idx) else {})}}
+    if extra is not None:  # the totals: RMS of the force and torque components, start and held out
+        rows = slice(len(obs.value), None)
+        start_pred = extra.mix @ extra.base.ravel()
+
+        def rms(pred):
+            r = (pred - extra.value).reshape(-1, 6)
+            return {"force_n": float(np.sqrt(np.mean(r[:, :3] ** 2))),
+                    "torque_nm": float(np.sqrt(np.mean(r[:, 3:] ** 2)))}
+
+        prov["held_out"]["wrench_rms"] = {"frames": int(extra.n_units), "start": rms(start_pred),
+                                          "refined": rms(fit.held_out_obs[rows])}
+    return replace(cal, residuals=res, provenance=prov, error_model=error_model,
+                   intensity=start.intensity if intensity is None else intensity)
+
+
+FOLDS_NOTE = "5-fold over each element's presses (and over force/torque frames), seeded"
+
+
+def error_model_of_totals(model, residuals, design, noise_var, *, source: str):
+    """``model`` (an :class:`~optitact.calib.error_model.ErrorModel`) scaled to held-out residuals of totals.
+
+    ``residuals`` (m,) of observations that sum several elements' forces (a force/torque sensor's
+    components); ``design`` (m, 6) their variance per unit of each part of an error model (the floor and
+    the part relative to Fz, of Fx, Fy and Fz: :attr:`Observations.model_var
+    <optitact.calib.element_shapes.Observations.model_var>`); ``noise_var`` (m,) the sensor's own. The
+    residuals cannot tell the elements' axes apart well (Fz dominates every total), so the model's
+    shape is kept and one factor ``k`` (within ``[0.1, 10]``) solves ``mean(r^2 / (k^2 v + noise_var)) =
+    1``, ``v`` what ``model`` gives each observation.
+    """
+    from scipy.optimize import brentq
+
+    r2 = np.asarray(residuals, dtype=np.float64) ** 2
+    v = np.asarray(design, dtype=np.float64) @ np.concatenate([model.floor_n**2, model.relative**2])
+    nv = np.maximum(np.asarray(noise_var, dtype=np.float64), 1e-18)
+
+    def excess(log_k):
+        return float(np.mean(r2 / (np.exp(2 * log_k) * v + nv))) - 1.0
+
+    lo, hi = np.log(0.1), np.log(10.0)
+    k = np.exp(lo if excess(lo) <= 0 else hi if excess(hi) >= 0 else brentq(excess, lo, hi, xtol=1e-6))
+    return replace(model, floor_n=model.floor_n * k, relative=model.relative * k, shear=model.shear * k,
+                   shear2=model.shear2 * k, samples=max(int(len(r2)), 1), source=source)
+
+
+def untransferred(model, tolerance: float):
+    """``model`` without the part :meth:`Calibration.transferred <optitact.calib.fit.Calibration.transferred>`
+    added for another sensor's elements (``tolerance`` relative; the fit to that sensor removes it)."""
+    if not tolerance:
+        return model
+    tol = np.array([0.0, 0.0, tolerance])
+    return replace(model, relative=np.sqrt(np.maximum(model.relative**2 - tol**2, 0.0)),
+                   shear=np.sqrt(np.maximum(model.shear**2 - (tolerance - tol) ** 2, 0.0)))

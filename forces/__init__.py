@@ -1,6 +1,7 @@
 """One frame's forces on the dome as a :class:`ForceField`; slip, friction and contact events in the modules.
 
-Modules: :mod:`~optitact.forces.slip`, :mod:`~optitact.forces.friction`, :mod:`~optitact.forces.contact_events`
+Modules: :mod:`~optitact.forces.slip`, :mod:`~optitact.forces.friction`, :mod:`~optitact.forces.contact_events`,
+:mod:`~optitact.forces.indenter` (objects pressed into the dome: their forces on the elements)
 (and the frame changes in :mod:`optitact.optics.force_frames`).
 
 Convention

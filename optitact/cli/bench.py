@@ -145,15 +145,27 @@ def add_parsers(sub) -> None:
                     "errors against the hidden truth. On the first --force-sensors of them, report held-out "
                     "force errors (RMSE in % of full scale per axis) with the nominal model and the shipped "
                     "calibration, after registration, after calibrations from N gauge presses per element "
-                    "(refined from the shipped one and from scratch), and with the stand-in's own synthetic "
-                    "calibration (the matched floor). The first run path-traces the no-load frame of the "
+                    "(each element's own shape refined from the shipped one, the earlier group refinement, and "
+                    "from scratch), after calibrations fitted to a force/torque sensor's totals of N frames of "
+                    "objects pressed on the dome, and with the stand-in's own synthetic calibration (the "
+                    "matched floor), with the 90 % interval coverage of each calibration's own error model. "
+                    "The stand-ins have, switchable, physics the package does not model: per-element rubber "
+                    "stiffness and nonlinearity, lens blur, vignetting and pixel response non-uniformity. The first run path-traces the no-load frame of the "
                     "default camera once (about a minute, cached); then about a minute per force stand-in.")
     breal.add_argument("--sensors", type=positive_int, default=10,
                        help="stand-ins registered (default 10)")
     breal.add_argument("--force-sensors", type=int, default=2,
                        help="of those, how many get the force study (default 2)")
-    breal.add_argument("--presses", type=positive_int, nargs="+", default=[5, 10, 20, 50], metavar="N",
-                       help="presses per element of the measured calibrations (default 5 10 20 50)")
+    breal.add_argument("--presses", type=positive_int, nargs="+", default=[2, 5, 10, 20], metavar="N",
+                       help="presses per element of the measured calibrations (default 2 5 10 20)")
+    breal.add_argument("--wrench-frames", type=positive_int, nargs="*", default=[50, 100, 200, 400], metavar="N",
+                       help="frames of the wrench protocol (random objects pressed near every element in turn, "
+                            "a six-axis F/T sensor's totals with 0.5 %% noise, no single-element presses) of the "
+                            "calibrations fitted to totals (default 50 100 200 400; none: skip)")
+    breal.add_argument("--effects", nargs="*", default=None, metavar="EFFECT",
+                       help="physics of a real sensor the package does not model, in the stand-ins: any of "
+                            "stiffness, nonlinearity, blur, vignetting, prnu (default all; none: give the "
+                            "option alone)")
     breal.add_argument("--test-frames", type=positive_int, default=40,
                        help="held-out frames per stand-in, every element loaded (default 40)")
     breal.add_argument("--size", default="640x480", metavar="WxH", help="frame size (default 640x480)")
@@ -241,9 +253,18 @@ def _realism(args) -> dict:
 
         raise InputError(f"--force-sensors must be from 0 to --sensors ({args.sensors}), got "
                          f"{args.force_sensors}")
+    from optitact.studies.bench_realism import EFFECTS
+
+    effects = EFFECTS if args.effects is None else tuple(args.effects)
+    bad = [e for e in effects if e not in EFFECTS]
+    if bad:
+        from optitact.errors import InputError
+
+        raise InputError(f"--effects: unknown {', '.join(bad)}; valid: {', '.join(EFFECTS)}")
     return bench_realism(sensors=args.sensors, force_sensors=args.force_sensors, ns=tuple(args.presses),
                          test_frames=args.test_frames, size=size(args.size), seed=args.seed,
-                         variant=args.variant, plot=args.plot)
+                         variant=args.variant, plot=args.plot, effects=effects,
+                         wrench_counts=tuple(args.wrench_frames))
 
 
 def _printing(bench):

@@ -113,8 +113,28 @@ def add_parsers(sub) -> None:
                       help="with --frames: the sensor and camera (e.g. from optitact register); default "
                            "the start's, else the default sensor and a camera of the frames' size")
     fitp.add_argument("--start", default=None, metavar="default|CAL.json",
-                      help="with --frames: refine this calibration ('default': the shipped one) instead "
-                           "of fitting from scratch, keeping per element what beats it on held-out presses")
+                      help="with --frames: refine this calibration ('default': the shipped one, transferred "
+                           "to --setup's sensor) instead of fitting from scratch (with --wrench: default "
+                           "'default')")
+    fitp.add_argument("--method", choices=("shapes", "groups"), default="shapes",
+                      help="how --start is refined: 'shapes' (default) fits every element's own curve shape "
+                           "(force scale and exponent, shear scale, brightness gradient, centroid shift), "
+                           "shrunk toward the start by a prior whose strength 5-fold cross-validation over the "
+                           "presses chooses, and keeps the held-out errors as the calibration's error model "
+                           "(process --stderr is honest with no validation step); 'groups' is the earlier "
+                           "refinement (a gain, a shear scale and a centroid shift per element, each kept "
+                           "where it beats the start)")
+    fitp.add_argument("--wrench", type=Path, default=None, metavar="FT.csv",
+                      help="a six-axis force/torque sensor's totals of frames among --frames, one row per "
+                           "frame: frame, fx, fy, fz, tx, ty, tz (N and N m, or units in brackets: 'Tz "
+                           "(N·mm)'), the wrench the object exerts on the dome in the F/T sensor's frame, "
+                           "about its origin; each element's curves are fitted so that the element forces, "
+                           "summed, match them (with --forces' presses too where given). Needs --ft-pose")
+    fitp.add_argument("--ft-pose", default=None, metavar="X,Y,Z[,RX,RY,RZ]|POSE.json",
+                      help="with --wrench: the F/T sensor's origin in the dome's frame (mm; origin at the "
+                           "dome's base centre, z up through the apex) and its rotation vector (deg) taking "
+                           "F/T axes to the dome's, e.g. 0,0,-30 for one 30 mm below the base, axes aligned; "
+                           "or a JSON file {\"position_mm\": [x, y, z], \"rotation_deg\": [rx, ry, rz]}")
     fitp.set_defaults(run=run_fit)
     test = csub.add_parser(
         "test", parents=[plot_parent("save estimated vs true forces of the pressed elements as PNG")],
@@ -219,6 +239,8 @@ def run_fit(args) -> int:
     """``optitact calibrate fit``: prints the calibration's path on stdout."""
     from optitact.calib.fit import fit
 
+    if args.wrench is not None or args.ft_pose is not None:
+        return _run_fit_wrench(args)
     if args.frames is not None or args.forces is not None:
         return _run_fit_presses(args)
     if args.set is None:
@@ -296,18 +318,19 @@ def _run_fit_presses(args) -> int:
     base, n_base = _baseline(args)
     p = measure_presses(args.frames, args.forces, pipeline=pipe, baseline=base, baseline_frames=n_base,
                         progress=True)
-    cal = fit_measured(p, pipe, model=args.model, start=start, forces=args.forces)
+    cal = fit_measured(p, pipe, model=args.model, start=start, forces=args.forces, method=args.method)
     cal.save(args.out)
     r = cal.residuals
     n_press = np.asarray(cal.provenance["presses_per_element"])
-    how = (f"refined {args.start} on {len(cal.provenance['refined_elements'])} elements"
-           if start is not None else f"fitted {cal.model} from scratch")
+    how = (f"fitted {cal.model} from scratch" if start is None else
+           f"refined {args.start}: each element's own shape" if cal.provenance["fit"] == "shapes" else
+           f"refined {args.start} on {len(cal.provenance['refined_elements'])} elements")
     print(f"optitact: {how} from {int(p.pressed.sum())} presses in {len(p.sources)} frames "
           f"({int(n_press.min())}-{int(n_press.max())} per element); median RMS residual Fx "
           f"{np.median(r['fx']):.4f} N, Fy {np.median(r['fy']):.4f} N, Fz {np.median(r['fz']):.4f} N; "
           f"wrote {args.out}", file=sys.stderr)
     if start is not None:
-        _print_refinement(cal.provenance)
+        (_print_shapes if cal.provenance["fit"] == "shapes" else _print_refinement)(cal)
     if args.plot is not None:
         from optitact.calib.plots import plot_fit
 
@@ -317,13 +340,14 @@ def _run_fit_presses(args) -> int:
     return 0
 
 
-def _print_refinement(prov: dict) -> None:
+def _print_refinement(cal) -> None:
     """What a refinement kept per group and its held-out RMSE against the start's, on stderr."""
+    prov = cal.provenance
     names = {"gain": "gain", "shear_scale": "shear scale", "centroid_shift": "centroid shift"}
     n_el = len(prov["refined_elements"])
     kept = ", ".join(f"{names[g]} on {len(ids)}" for g, ids in prov["kept_groups"].items())
     held = prov["held_out"]
-    rmse = held["rmse_n"]
+    rmse = held.get("rmse_n")
     figures = ", ".join(f"{k.capitalize()} {rmse['start'][k]:.4f} -> {rmse['refined'][k]:.4f} N"
                         for k in ("fx", "fy", "fz"))
     print(f"optitact: kept per element only what beat the start on held-out presses ({held['folds']}): "
@@ -504,4 +528,66 @@ def run_noise(args) -> int:
           f"{model.lit_variance:.3g}, read noise {model.read_sigma:.3g} grey levels; wrote {args.out}",
           file=sys.stderr)
     print(json.dumps(model.to_dict()))
+    return 0
+
+
+def _print_shapes(cal) -> None:
+    """What a shape fit found: the prior's strength, the elements pinned down, held-out errors, error model."""
+    prov = cal.provenance
+    n_el = len(cal.g)
+    pinned = prov["normal_curve_pinned"]
+    loose = [e for e in range(n_el) if e not in set(pinned)]
+    held = prov["held_out"]
+    rmse = held.get("rmse_n")
+    st = prov["strength"]
+    parts = [f"prior strength: normal curve {st['normal']:.3g}, shear {st['shear']:.3g} (of "
+             f"{len(prov['cv_scores'])} pairs tried, by held-out {held['folds']})",
+             f"normal curve pinned down by the observations on {len(pinned)} of {n_el} elements"
+             + (f" (the prior holds on {', '.join(map(str, loose[:12]))}{' ...' if len(loose) > 12 else ''})"
+                if loose else "")]
+    if "wrench_rms" in held:
+        w = held["wrench_rms"]
+        parts.append(f"held-out wrench RMS over {w['frames']} frames, start -> fitted: force "
+                     f"{w['start']['force_n']:.4f} -> {w['refined']['force_n']:.4f} N, torque "
+                     f"{1000 * w['start']['torque_nm']:.3f} -> {1000 * w['refined']['torque_nm']:.3f} N mm")
+    if held["samples"]:
+        parts.append(f"held-out RMSE over {held['samples']} presses, start -> fitted: " + ", ".join(
+            f"{k.capitalize()} {rmse['start'][k]:.4f} -> {rmse['refined'][k]:.4f} N" for k in ("fx", "fy", "fz")))
+    m = cal.error_model
+    if m is not None:
+        parts.append(f"error model from {m.source}: floor Fx {m.floor_n[0]:.4f}, Fy {m.floor_n[1]:.4f}, "
+                     f"Fz {m.floor_n[2]:.4f} N plus Fz {m.relative[2]:.4f} N per N of Fz"
+                     + _ring_scales(m, cal.sensor.element_ring))
+    for p in parts:
+        print(f"optitact: {p}", file=sys.stderr)
+
+
+def _run_fit_wrench(args) -> int:
+    """``optitact calibrate fit --frames ... --wrench FT.csv --ft-pose ... [--forces GAUGE.csv]``."""
+    from optitact.calib.press_fit import starting_calibration
+    from optitact.calib.wrench import SensorPose
+    from optitact.calib.wrench_fit import fit_wrench_frames
+
+    if args.frames is None or args.wrench is None or args.ft_pose is None:
+        raise InputError("fitting to force/torque totals needs --frames, --wrench and --ft-pose (the F/T "
+                         "sensor's pose relative to the dome, e.g. 0,0,-30)")
+    if args.set is not None or args.partial:
+        raise InputError("give a calibration set or --frames/--wrench, not both")
+    if args.method != "shapes":
+        raise InputError("--wrench fits each element's shape (--method shapes); --method groups is for presses")
+    start = starting_calibration("default" if args.start is None else args.start)
+    pipe = _presses_pipeline(args.setup, start, args.frames)
+    pose = SensorPose.parse(args.ft_pose, sensor=pipe.sensor)
+    base, n_base = _baseline(args)
+    cal = fit_wrench_frames(args.frames, args.wrench, pose, pipeline=pipe, start=start, forces=args.forces,
+                            baseline=base, baseline_frames=n_base, progress=True)
+    cal.save(args.out)
+    prov = cal.provenance
+    counts = np.asarray(prov["wrench_frames_per_element"])
+    print(f"optitact: refined {args.start or 'default'}: each element's own shape, from {prov['wrench_frames']} "
+          f"force/torque frames ({int(counts.min())}-{int(counts.max())} loading each element)"
+          + (f" and {int(np.sum(prov['presses_per_element']))} presses" if args.forces is not None else "")
+          + f"; wrote {args.out}", file=sys.stderr)
+    _print_shapes(cal)
+    print(args.out)
     return 0

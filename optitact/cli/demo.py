@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -17,6 +18,10 @@ from optitact.optics.sensor import DomeSensor
 from optitact.cli._args import out_file, out_folder, render_parents
 
 __all__ = ["add_parsers", "display_levels", "display_view", "overlay"]
+
+#: ``render --indenter``'s grammar: :data:`optitact.forces.indenter.SPEC_GRAMMAR` (not imported by the parser).
+_INDENTER_GRAMMAR = ("sphere:radius=R | flat:radius=R | edge:length=L,tip_radius=r[,angle=DEG] | "
+                     "cylinder:radius=R,length=L, each optionally with ,spin=DEG")
 
 #: No-load frames the demo renders (once, cached) for its baseline.
 NOLOAD_FRAMES = 4
@@ -53,14 +58,38 @@ def add_parsers(sub) -> None:
     demo.set_defaults(run=run_demo)
 
     rend = sub.add_parser(
-        "render", parents=render_parents(spp=64), help="render a frame for forces given in a CSV file",
+        "render", parents=render_parents(spp=64),
+        help="render a frame for forces given in a CSV file or made by an object pressed into the dome",
         description="Render one camera frame of the dome for element-local forces read from a "
                     "CSV file (41 rows of fx, fy, fz in N, or element, fx, fy, fz; optional "
-                    "header) and write it as PNG (or .npy). Output names are checked before "
-                    "rendering.")
-    rend.add_argument("--forces", type=Path, required=True, metavar="FILE.csv",
-                      help="element-local forces, one row per element; with an element column only the "
-                           "loaded elements (the header alone: no load)")
+                    "header), or made by an object pressed into the dome (--indenter, with --at and "
+                    "--depth or --force; the contact model of optitact.forces.indenter), and write it "
+                    "as PNG (or .npy). Output names are checked before rendering.")
+    source = rend.add_mutually_exclusive_group(required=True)
+    source.add_argument("--forces", type=Path, default=None, metavar="FILE.csv",
+                        help="element-local forces, one row per element; with an element column only the "
+                             "loaded elements (the header alone: no load)")
+    source.add_argument("--indenter", type=_indenter_spec, default=None, metavar="SPEC",
+                        help="press an object into the dome instead: " + _INDENTER_GRAMMAR
+                             + " (mm, deg); e.g. sphere:radius=5")
+    rend.add_argument("--at", type=_numbers("POLAR,AZIMUTH", 2), default=None, metavar="POLAR,AZIMUTH",
+                      help="with --indenter: where it touches the feeler tips, polar angle from the dome "
+                           "axis and azimuth from +x (deg; default 0,0, the apex); it presses towards the "
+                           "dome centre")
+    push = rend.add_mutually_exclusive_group()
+    push.add_argument("--depth", type=float, default=None, metavar="MM",
+                      help="with --indenter: how far it is pushed in beyond touching (mm)")
+    push.add_argument("--force", type=float, default=None, metavar="N",
+                      help="with --indenter: the pressing force to reach (N); the depth is solved for")
+    rend.add_argument("--slide", type=_numbers("DX,DY[,DZ]", 2, 3), default=None, metavar="DX,DY[,DZ]",
+                      help="with --indenter: slide it after pressing (mm): DX,DY along its own x, y axes "
+                           "(tangent to the dome where it touches), or DX,DY,DZ in the sensor frame; "
+                           "--slide=-0.1,0 for a negative first value")
+    rend.add_argument("--friction", type=float, default=None, metavar="MU",
+                      help="with --indenter: Coulomb friction coefficient of the slide (default 0.5)")
+    rend.add_argument("--forces-out", type=out_file(".csv"), default=None, metavar="FILE.csv",
+                      help="with --indenter: also write the element forces as a CSV file that --forces "
+                           "reads")
     rend.add_argument("--setup", type=Path, default=None, metavar="SETUP.json",
                       help="render the sensor and camera of a setup file (from optitact register: its "
                            "camera model and pose, element offsets and gains) at the camera's size "
@@ -75,6 +104,55 @@ def add_parsers(sub) -> None:
                            f"offset black, the brightest spots white, gamma {VIEW_GAMMA:g}); never "
                            "use it as data")
     rend.set_defaults(run=run_render)
+
+
+def _indenter_spec(text: str):
+    """An argparse type: ``--indenter`` text as ``(shape, spin_deg)`` (the indenter module's ``parse_spec``)."""
+    from optitact.errors import InputError
+    from optitact.forces.indenter import parse_spec
+
+    try:
+        return parse_spec(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _numbers(form: str, *counts: int):
+    """An argparse type: comma-separated finite numbers, as many as one of ``counts``."""
+
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) not in counts or not all(np.isfinite(values)):
+            raise argparse.ArgumentTypeError(f"expected {form} (finite numbers, comma-separated), got {text!r}")
+        return values
+
+    return parse
+
+
+def _indenter_forces(sensor: DomeSensor, args) -> np.ndarray:
+    """``--indenter``: the element forces of the object pressed at ``--at``; a summary on stderr."""
+    from optitact.errors import InputError
+    from optitact.forces.indenter import Pose, press
+
+    if args.depth is None and args.force is None:
+        raise InputError("--indenter needs --depth MM (how far it is pushed in) or --force N (the pressing "
+                         "force)")
+    shape, spin = args.indenter
+    polar, azimuth = (0.0, 0.0) if args.at is None else args.at
+    pose = Pose.touching(sensor, polar, azimuth, spin_deg=spin)
+    ind = press(sensor, shape, pose, depth=args.depth, force=args.force, slide=args.slide,
+                friction=0.5 if args.friction is None else args.friction)
+    print(f"optitact: indenter {shape.spec} spin {spin:g} deg at polar {polar:g} deg, azimuth {azimuth:g} deg: "
+          f"depth {ind.depth:.4g} mm, pressing force {ind.normal_force:.4g} N, {ind.n_contact} of "
+          f"{sensor.n_elements} elements in contact ({int(ind.slipping.sum())} slipping)", file=sys.stderr)
+    for i in np.flatnonzero(ind.contact):
+        fx, fy, fz = ind.forces[i]
+        print(f"optitact:   element {i:2d}: fx {fx:+.4f} N, fy {fy:+.4f} N, fz {fz:+.4f} N"
+              + (" (slipping)" if ind.slipping[i] else ""), file=sys.stderr)
+    return ind.forces
 
 
 def _render_frame(sensor: DomeSensor, forces: np.ndarray, args, camera=None) -> dict:
@@ -359,8 +437,23 @@ def run_render(args) -> int:
     from optitact.io.tables import read_forces_csv
     from optitact.io.files import write_npy, write_png
 
+    if args.indenter is None:
+        given = [name for name in ("at", "depth", "force", "slide", "friction", "forces_out")
+                 if getattr(args, name) is not None]
+        if given:
+            from optitact.errors import InputError
+
+            raise InputError(f"{', '.join('--' + g.replace('_', '-') for g in given)}: only with --indenter "
+                             f"(the forces of --forces are given)")
     sensor, camera = _setup(args, (args.width, args.height) != (640, 480))
-    forces = read_forces_csv(args.forces, sensor.n_elements)
+    if args.indenter is None:
+        forces = read_forces_csv(args.forces, sensor.n_elements)
+    else:
+        forces = _indenter_forces(sensor, args)
+        if args.forces_out is not None:
+            from optitact.io.tables import write_forces_csv
+
+            write_forces_csv(args.forces_out, forces)
     r = _render_frame(sensor, forces, args, camera)
     if args.out.suffix.lower() == ".npy":
         write_npy(args.out, r["frame"])
@@ -373,6 +466,8 @@ def run_render(args) -> int:
     if args.view is not None:
         write_png(args.view, display_view(r["frame"]))
         written.append(f"{args.view} (viewing only)")
+    if args.indenter is not None and args.forces_out is not None:
+        written.append(f"{args.forces_out} (the element forces)")
     print(f"optitact: wrote {', '.join(written)}", file=sys.stderr)
     return 0
 

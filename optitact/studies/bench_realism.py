@@ -16,6 +16,25 @@ seed and not told to the code under test (:func:`draw_standin`):
   side. It multiplies the light reaching each element (folded into the
   element's gain) and the dark no-load background's rim glow.
 
+Physics the package does not model (:data:`EFFECTS`, each switchable, all on by
+default, drawn from the stand-in's seed):
+
+* ``stiffness``: each element's rubber a little stiffer or softer than the
+  design: it deforms under a force ``F`` as the design does under ``s F``,
+  ``s`` uniform in [0.9, 1.1] per element;
+* ``nonlinearity``: and slightly nonlinear, as the design under ``F
+  (Fz / 0.5 N)^g``, ``g`` uniform in [-0.05, 0.05] per element (together:
+  the frame is rendered for ``s (Fz / 0.5 N)^g F``);
+* ``blur``: a lens blur, Gaussian of 0.6 px standard deviation;
+* ``vignetting``: the lens's fall-off, ``1 - 0.15 (r / r_edge)^2`` with ``r``
+  the distance from the image centre and ``r_edge`` half the shorter side
+  (0.85 at the image edge, held beyond);
+* ``prnu``: 1 % pixel response non-uniformity (a fixed gain per pixel,
+  normal around 1).
+
+The optical ones act on the radiance reaching the sensor (no-load glow
+included), before the CCD's noise.
+
 Frames are rendered with the two-stage light transport through the
 stand-in's own camera and geometry and exposed with the nominal CCD model.
 The user's knowledge of the camera is what ``cv2.fisheye.calibrate`` on a
@@ -27,7 +46,8 @@ no pose. Then, per stand-in:
    (what a user gets today);
 2. ``registered``: :func:`optitact.registration.pose` on a no-load frame and six frames
    pressing every element once at one gauge setting (pose, element offsets and
-   gains), with the shipped calibration transferred to the result;
+   gains at that force, ``--press-force``), with the shipped calibration
+   transferred to the result (its error model widened for the transfer);
 3. ``presses``: the registered pipeline and a calibration fitted from ``N``
    single-element gauge presses per element (half normal, half inclined; the
    gauge reads 1 % of reading noise), refined from the transferred shipped
@@ -43,6 +63,7 @@ element, ``calib.patterns.design_forces`` with seeds no other step uses) with
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import warnings
@@ -56,7 +77,16 @@ from optitact.optics.camera_models import OpenCVFisheyeCamera, pose_from_positio
 from optitact.errors import InputError, OptitactWarning
 from optitact.optics.sensor import DomeSensor
 
-__all__ = ["StandIn", "draw_standin", "bench_realism", "REGISTRATION_PRESSES"]
+__all__ = ["EFFECTS", "StandIn", "draw_standin", "bench_realism", "REGISTRATION_PRESSES"]
+
+#: The physics of a real sensor the package does not model, switchable in the stand-ins (module docstring).
+EFFECTS = ("stiffness", "nonlinearity", "blur", "vignetting", "prnu")
+#: Per-element stiffness and nonlinearity of the stand-ins: ``s`` in [1 - a, 1 + a], ``g`` in [-b, b].
+STIFFNESS_SPREAD, NONLINEARITY_SPREAD = 0.10, 0.05
+#: The force at which the nonlinearity ``(Fz / F_REF)^g`` is 1 (N).
+NONLINEARITY_REF_N = 0.5
+#: Lens blur (Gaussian sigma, px), vignetting at the image edge, pixel response non-uniformity (sigma).
+BLUR_PX, VIGNETTING_EDGE, PRNU = 0.6, 0.85, 0.01
 
 #: Elements pressed in each registration frame: all 41 once, spread over the rings (7 per frame).
 REGISTRATION_PRESSES = ((0, 2, 5, 11, 14, 27, 33), (1, 4, 7, 9, 17, 21, 30, 37), (3, 6, 13, 19, 25, 29, 40),
@@ -94,10 +124,57 @@ class StandIn:
     intrinsics: OpenCVFisheyeCamera
     rim: tuple
     brightness: np.ndarray
+    stiffness: np.ndarray | None = None
+    nonlinearity: np.ndarray | None = None
+    effects: tuple = ()
+    seed: int = 0
+
+    def effective_forces(self, forces) -> np.ndarray:
+        """The forces the design's rubber would need to deform as this stand-in's does under ``forces``.
+
+        ``s (Fz / 0.5 N)^g F`` per element with the ``stiffness`` and
+        ``nonlinearity`` effects on; ``forces`` as they are otherwise.
+        """
+        f = np.asarray(forces, dtype=np.float64)
+        k = np.ones(f.shape[:-1])
+        if "stiffness" in self.effects:
+            k = k * self.stiffness
+        if "nonlinearity" in self.effects:
+            fz = np.maximum(f[..., 2], 1e-9)
+            k = k * (fz / NONLINEARITY_REF_N) ** self.nonlinearity
+        return f * k[..., None]
+
+    def optics(self, radiance: np.ndarray) -> np.ndarray:
+        """The radiance the pixels receive: lens blur, vignetting and pixel non-uniformity (those on)."""
+        img = np.asarray(radiance, dtype=np.float32)
+        if "blur" in self.effects:
+            import cv2
+
+            img = cv2.GaussianBlur(img, (0, 0), BLUR_PX, borderType=cv2.BORDER_REFLECT)
+        h, w = img.shape[:2]
+        gain = _pixel_gain(self.seed, h, w, "vignetting" in self.effects, "prnu" in self.effects)
+        return img if gain is None else img * gain
 
     def rim_factor(self, polar, azimuth) -> np.ndarray:
         """The rim light's relative strength at dome points ``(polar, azimuth)`` (rad)."""
         return _rim_factor(self.rim, polar, azimuth)
+
+
+@functools.lru_cache(maxsize=4)
+def _pixel_gain(seed: int, h: int, w: int, vignetting: bool, prnu: bool) -> np.ndarray | None:
+    """Each pixel's response: the vignetting's fall-off times the pixel non-uniformity (None: neither)."""
+    if not (vignetting or prnu):
+        return None
+    gain = np.ones((h, w))
+    if vignetting:
+        rows, cols = np.mgrid[:h, :w]
+        r = np.hypot(rows - (h - 1) / 2, cols - (w - 1) / 2) / (min(w, h) / 2)
+        gain *= 1.0 - (1.0 - VIGNETTING_EDGE) * np.minimum(r, 1.0) ** 2
+    if prnu:
+        gain *= 1.0 + PRNU * np.random.default_rng([seed, 23]).standard_normal((h, w))
+    out = gain.astype(np.float32)
+    out.flags.writeable = False
+    return out
 
 
 def _rim_factor(rim, polar, azimuth) -> np.ndarray:
@@ -107,8 +184,16 @@ def _rim_factor(rim, polar, azimuth) -> np.ndarray:
     return 1.0 + s * (a1 * np.cos(azimuth - p1) + a2 * np.cos(2.0 * (azimuth - p2)))
 
 
-def draw_standin(seed: int, size: tuple[int, int] = (640, 480)) -> StandIn:
-    """The stand-in sensor of ``seed`` (see the module docstring for the tolerances)."""
+def draw_standin(seed: int, size: tuple[int, int] = (640, 480), effects=EFFECTS) -> StandIn:
+    """The stand-in sensor of ``seed`` (see the module docstring for the tolerances).
+
+    ``effects``: which of :data:`EFFECTS` it has (all by default); the rest of
+    the draw does not depend on them, so a seed is the same sensor with any.
+    """
+    effects = tuple(effects)
+    bad = [e for e in effects if e not in EFFECTS]
+    if bad:
+        raise InputError(f"unknown stand-in effect(s) {bad}; valid: {', '.join(EFFECTS)}")
     rng = np.random.default_rng([int(seed), 18])
     w, h = size
     nominal = DomeSensor.default()
@@ -143,7 +228,11 @@ def draw_standin(seed: int, size: tuple[int, int] = (640, 480)) -> StandIn:
                                      cx=cx + rng.normal(0, 0.3), cy=cy + rng.normal(0, 0.3),
                                      dist=tuple(float(d * (1 + rng.normal(0, 0.02))) for d in dist),
                                      **pose_from_position((0.0, 0.0, z)))
-    return StandIn(sensor, camera, intrinsics, tuple(float(v) for v in rim), brightness)
+    rubber = np.random.default_rng([int(seed), 21])  # drawn apart: the geometry above is the same with or without
+    stiffness = 1.0 + rubber.uniform(-STIFFNESS_SPREAD, STIFFNESS_SPREAD, n)
+    nonlinearity = rubber.uniform(-NONLINEARITY_SPREAD, NONLINEARITY_SPREAD, n)
+    return StandIn(sensor, camera, intrinsics, tuple(float(v) for v in rim), brightness, stiffness,
+                   nonlinearity, effects, int(seed))
 
 
 # ----------------------------------------------------------------------------- rendering the stand-in
@@ -173,8 +262,10 @@ class _Frames:
     def radiance(self, forces: np.ndarray) -> np.ndarray:
         from optitact.render import render
 
-        return render(self.standin.sensor, forces, camera=self.standin.camera, transport="two_stage",
-                      table=self.table, background=self.background)
+        radiance = render(self.standin.sensor, self.standin.effective_forces(forces),
+                          camera=self.standin.camera, transport="two_stage", table=self.table,
+                          background=self.background)
+        return self.standin.optics(radiance)
 
     def frame(self, forces: np.ndarray, seed: int) -> np.ndarray:
         return self.ccd.expose(self.radiance(forces), seed=seed)
@@ -216,6 +307,97 @@ def _press_forces(n: int, n_el: int, seed: int) -> np.ndarray:
             f[t, e] = (mu * fz * math.cos(phi), mu * fz * math.sin(phi), fz)
             t += 1
     return f[rng.permutation(len(f))]
+
+
+#: The F/T sensor of the wrench protocol: 30 mm below the dome's base, turned 15 deg about z and
+#: slightly off the axis (a mount as built).
+FT_POSE = {"position_mm": [1.0, -2.0, -30.0], "rotation_deg": [0.0, 0.0, 15.0]}
+#: Largest element force (N) a wrench-protocol press may give, and the largest ratio of an element's shear
+#: to its normal force (the calibrated range: the design's loads, :class:`optitact.calib.sets.Design`).
+WRENCH_MAX_ELEMENT_N, WRENCH_MAX_SHEAR_RATIO = 1.0, 0.35
+
+
+def _wrench_loads(n: int, sensor: DomeSensor, seed: int) -> np.ndarray:
+    """The wrench protocol: ``n`` presses of random objects at random poses (T, E, 3) element-local forces.
+
+    An object (sphere of 3-15 mm radius, flat punch of 2-6 mm, rounded edge of 0.5-2 mm tip, lying
+    cylinder of 3-10 mm) is pressed near an element (3 mm rms off it along the dome, the elements taken
+    in a random order, round after round: a lab moving the object over the whole dome), turned at
+    random about its axis, to a total force of 0.2-2.5 N (less where an element would
+    carry more than :data:`WRENCH_MAX_ELEMENT_N`), then slid by up to 0.3 mm (friction 0.5) for shear
+    (:func:`optitact.forces.indenter.press`). A press that shears an element beyond
+    :data:`WRENCH_MAX_SHEAR_RATIO` of its normal force (an object pressing a feeler from the side) is
+    outside what a calibration covers, and another is drawn.
+    """
+    from optitact.forces.indenter import Cylinder, Edge, Flat, Pose, Sphere, press
+
+    rng = np.random.default_rng([seed, 29])
+    out = np.zeros((n, sensor.n_elements, 3))
+    order = {}
+    t = 0
+    while t < n:
+        kind = rng.integers(4)
+        shape = (Sphere(rng.uniform(3, 15)), Flat(rng.uniform(2, 6)),
+                 Edge(length=rng.uniform(10, 20), tip_radius=rng.uniform(0.5, 2.0)),
+                 Cylinder(rng.uniform(3, 10), 30.0))[kind]
+        if t % sensor.n_elements == 0 and t not in order:
+            order[t] = rng.permutation(sensor.n_elements)  # the next round over the dome
+        e = order[t - t % sensor.n_elements][t % sensor.n_elements]
+        # near element e: its point on the dome, moved by 3 mm (rms, along the surface) in a random direction
+        polar = math.degrees(sensor.element_polar[e]) + math.degrees(rng.normal(0, 3.0) / sensor.outer_radius)
+        azimuth = math.degrees(sensor.element_azimuth[e]) + math.degrees(
+            rng.normal(0, 3.0) / (sensor.outer_radius * max(math.sin(sensor.element_polar[e]), 0.2)))
+        pose = Pose.touching(sensor, float(np.clip(abs(polar), 0.0, 80.0)), azimuth, spin_deg=rng.uniform(0, 360))
+        slide = rng.uniform(0, 0.3) * np.array([math.cos(a := rng.uniform(0, 2 * np.pi)), math.sin(a)])
+        total = rng.uniform(0.2, 2.5)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OptitactWarning)
+                f = press(sensor, shape, pose, force=total, slide=slide, friction=0.5).forces
+                top = float(f[:, 2].max())
+                if top > WRENCH_MAX_ELEMENT_N:
+                    f = press(sensor, shape, pose, force=total * 0.95 * WRENCH_MAX_ELEMENT_N / top, slide=slide,
+                              friction=0.5).forces
+        except InputError:  # too deep for this object at this force: draw another
+            continue
+        f = np.where(f[:, 2:3] > 1e-4, f, 0.0)  # elements the object does not press
+        if not f[:, 2].any() or np.any(np.hypot(f[:, 0], f[:, 1]) > WRENCH_MAX_SHEAR_RATIO * f[:, 2]):
+            continue  # nothing pressed, or an element sheared beyond the calibrated range: another object
+        out[t] = f
+        t += 1
+    return out
+
+
+def _wrench_calibrations(readings, loads, counts, reg, start, standin: StandIn, seed: int) -> list:
+    """Calibrations from the first ``n`` wrench-protocol frames (each of ``counts``): refined from ``start``.
+
+    The F/T sensor reads the true wrench with 0.5 % of reading noise (and its floor). A fit the frames
+    cannot support (an element never loaded) is ``{"refused": message}``.
+    """
+    from optitact.calib.wrench import SensorPose, Wrenches, element_wrench
+    from optitact.calib.wrench_fit import FT_FLOOR, FT_NOISE, fit_wrenches
+    from optitact.pipeline.readings import Readings
+
+    pose = SensorPose.from_dict(FT_POSE)
+    true = element_wrench(standin.sensor, pose, loads)
+    rng = np.random.default_rng([seed, 31])
+    force = np.linalg.norm(true[:, :3], axis=1, keepdims=True)
+    torque = np.linalg.norm(true[:, 3:], axis=1, keepdims=True)
+    sd = np.concatenate([np.sqrt((FT_NOISE * force) ** 2 + FT_FLOOR[0] ** 2).repeat(3, 1),
+                         np.sqrt((FT_NOISE * torque) ** 2 + FT_FLOOR[1] ** 2).repeat(3, 1)], axis=1)
+    measured = true + sd * rng.standard_normal(true.shape)
+    out = []
+    for n in counts:
+        sub = Readings(readings.G[:n], readings.u[:n], readings.contact[:n], readings.saturated[:n])
+        w = Wrenches(np.arange(n), measured[:n], np.arange(2, n + 2), "ft.csv")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OptitactWarning)
+                out.append(fit_wrenches(sub, w, pose, sensor=reg.sensor, camera=reg.camera, start=start,
+                                        seed=seed))
+        except InputError as exc:
+            out.append({"refused": str(exc)})
+    return out
 
 
 def _pose_error(fit: Camera, true: Camera) -> tuple[float, float]:
@@ -263,15 +445,20 @@ def _press_calibrations(readings, gauge, n: int, reg, start, options: dict, seed
     sub = Readings(readings.G, readings.u, chosen, readings.saturated)
     forces = np.where(chosen[..., None], gauge, 0.0)
     out = {}
-    for kind, st in (("refined", start), ("scratch", None)):
+    for kind, st, method in (("refined", start, "shapes"), ("groups", start, "groups"), ("scratch", None, None)):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", OptitactWarning)
                 out[kind] = fit_presses(sub, forces, pressed=chosen, sensor=reg.sensor, camera=reg.camera,
-                                        pipeline_options=options, start=st)
+                                        pipeline_options=options, start=st,
+                                        **({} if method is None else {"method": method}))
         except InputError as exc:
             out[kind] = {"refused": str(exc)}
     return out
+
+
+#: The full scales the errors are given in (N): the sensor's range of normal force and of shear.
+FULL_SCALE_N = {"fx": 0.5, "fy": 0.5, "fz": 1.0}
 
 
 def _report(cal, readings, forces) -> dict:
@@ -280,12 +467,15 @@ def _report(cal, readings, forces) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OptitactWarning)
         rep = press_report(cal, readings, forces, np.any(forces != 0, axis=-1))
-    return {"rmse_pct_fs": rep["rmse_pct_fs"], "rmse_n": rep["rmse_n"], "bias_n": rep["bias_n"]}
+    return {"rmse_pct_fs": {a: 100.0 * rep["rmse_n"][a] / FULL_SCALE_N[a] for a in FULL_SCALE_N},
+            "rmse_n": rep["rmse_n"], "bias_n": rep["bias_n"], "coverage_90": rep["coverage_90"],
+            "error_model": "fitted" if cal.error_model is not None else "residuals"}
 
 
-def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 50), test_frames: int = 40,
+def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(2, 5, 10, 20), test_frames: int = 40,
                   size: tuple[int, int] = (640, 480), seed: int = 0, variant: str | None = None, plot=None,
-                  matched_frames: int = MATCHED_FRAMES, progress: bool = True) -> dict:
+                  matched_frames: int = MATCHED_FRAMES, progress: bool = True, effects=EFFECTS,
+                  wrench_counts=(50, 100, 200, 400)) -> dict:
     """Registration and force errors on stand-ins for a real sensor (see the module docstring).
 
     Parameters
@@ -310,6 +500,12 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
     matched_frames : int
         Frames of each force stand-in's own synthetic calibration (the floor).
     progress : bool
+    effects : sequence of str
+        Which of :data:`EFFECTS` the stand-ins have (default all).
+    wrench_counts : sequence of int
+        Frames of the wrench protocol (:func:`_wrench_loads`, a six-axis
+        F/T sensor's totals and no single-element presses) of the
+        calibrations fitted to totals; empty: none.
 
     Returns
     -------
@@ -332,6 +528,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
     if force_sensors > sensors:
         raise InputError(f"force_sensors ({force_sensors}) must be at most sensors ({sensors})")
     ns = tuple(integer(n, "ns", minimum=1) for n in ns)
+    wrench_counts = tuple(integer(n, "wrench_counts", minimum=2) for n in wrench_counts)
     test_frames = integer(test_frames, "test_frames", minimum=1)
     matched_frames = integer(matched_frames, "matched_frames", minimum=8)
     shipped = default_calibration()
@@ -341,7 +538,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
     reg_rows, force_rows = [], []
     for i in range(sensors):
         s_seed = seed + i
-        standin = draw_standin(s_seed, size)
+        standin = draw_standin(s_seed, size, effects)
         frames = _Frames(standin, variant=variant)
         base = frames.baseline(s_seed)
         press = np.zeros((len(REGISTRATION_PRESSES), n_el, 3))
@@ -352,7 +549,7 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         row = {"seed": s_seed}
         try:
             reg = register(base.mean(axis=0), pressed, camera=standin.intrinsics, fit_offsets=True,
-                           fit_gains=True)
+                           fit_gains=True, press_force=REGISTRATION_FORCE_N)
         except RegistrationError as exc:
             row["refused"] = str(exc)
             reg_rows.append(row)
@@ -391,12 +588,20 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
         gauge = press_f * (1 + 0.01 * np.random.default_rng([s_seed, 17]).normal(size=press_f.shape))
         pr = _readings(frames, {"registered": pipes["registered"]}, press_f, 40_000 + s_seed, "presses",
                        progress)["registered"]
-        out["presses"] = {"ns": list(ns), "refined": [], "scratch": []}
+        out["presses"] = {"ns": list(ns), "refined": [], "groups": [], "scratch": []}
         for n in ns:
             for kind, cal in _press_calibrations(pr, gauge, n, reg, transferred, options, s_seed).items():
                 out["presses"][kind].append(cal if isinstance(cal, dict) else
                                             {fam: _report(cal, test[fam]["registered"], f)
                                              for fam, f in tests.items()})
+        if wrench_counts:
+            loads = _wrench_loads(max(wrench_counts), standin.sensor, 70_000 + s_seed)
+            wr = _readings(frames, {"registered": pipes["registered"]}, loads, 80_000 + s_seed, "wrench frames",
+                           progress)["registered"]
+            out["wrench"] = {"counts": list(wrench_counts), "refined": [
+                cal if isinstance(cal, dict) else {fam: _report(cal, test[fam]["registered"], f)
+                                                   for fam, f in tests.items()}
+                for cal in _wrench_calibrations(wr, loads, wrench_counts, reg, transferred, standin, s_seed)]}
         cal_f = design_forces(matched_frames, n_el, Design(pattern="blend"), seed=50_000 + s_seed,
                               sensor=standin.sensor)
         own = _readings(frames, {"matched": pipes["matched"]}, cal_f, 60_000 + s_seed, "matched set",
@@ -410,9 +615,12 @@ def bench_realism(*, sensors: int = 10, force_sensors: int = 2, ns=(5, 10, 20, 5
                         "test_frames": test_frames, "ns": list(ns),
                         "registration_force_n": REGISTRATION_FORCE_N,
                         "matched_frames": matched_frames, "gauge_noise": "1 % of reading",
-                        "render": "two_stage, stand-in's own camera and geometry, nominal CCD"},
+                        "render": "two_stage, stand-in's own camera and geometry, nominal CCD",
+                        "effects": list(effects), "full_scale_n": FULL_SCALE_N,
+                        "wrench_counts": list(wrench_counts), "ft_pose": FT_POSE,
+                        "ft_noise": "0.5 % of reading"},
               "registration": {"per_sensor": reg_rows, "worst": _worst(reg_rows)},
-              "forces": {"per_sensor": force_rows, "summary": _summary(force_rows, ns)}}
+              "forces": {"per_sensor": force_rows, "summary": _summary(force_rows, ns, wrench_counts)}}
     if plot is not None:
         result["plot"] = str(_plot(result, plot))
     return result
@@ -429,7 +637,7 @@ def _worst(rows: list) -> dict:
     return out
 
 
-def _summary(rows: list, ns) -> dict:
+def _summary(rows: list, ns, wrench_counts=()) -> dict:
     """Per held-out family: per-axis RMSE (% FS), median over the force stand-ins, per row of the study."""
     if not rows:
         return {}
@@ -439,14 +647,26 @@ def _summary(rows: list, ns) -> dict:
         good = [r for r in reports if "refused" not in r]
         return {a: float(np.median([r["rmse_pct_fs"][a] for r in good])) for a in axes} if good else None
 
+    def cov(reports):
+        good = [r for r in reports if "refused" not in r and r.get("coverage_90")]
+        return {a: float(np.median([r["coverage_90"][a] for r in good])) for a in axes} if good else None
+
     out = {}
     for fam in rows[0]["matched"]:
         one = {"nominal": med([r["nominal"][fam] for r in rows]),
                "registered": med([r["registered"][fam] for r in rows]),
                "matched": med([r["matched"][fam] for r in rows])}
-        for kind in ("refined", "scratch"):
+        for kind in ("refined", "groups", "scratch"):
             one[kind] = {str(n): med([r["presses"][kind][j].get(fam, r["presses"][kind][j]) for r in rows])
                          for j, n in enumerate(ns)}
+        if wrench_counts:
+            one["wrench"] = {str(n): med([r["wrench"]["refined"][j].get(fam, r["wrench"]["refined"][j])
+                                          for r in rows]) for j, n in enumerate(wrench_counts)}
+        one["coverage_90"] = {"registered": cov([r["registered"][fam] for r in rows]),
+                              "refined": {str(n): cov([r["presses"]["refined"][j].get(fam, {}) for r in rows])
+                                          for j, n in enumerate(ns)},
+                              **({"wrench": {str(n): cov([r["wrench"]["refined"][j].get(fam, {}) for r in rows])
+                                             for j, n in enumerate(wrench_counts)}} if wrench_counts else {})}
         floor = one["matched"]
         one["refined_over_matched"] = {str(n): ({a: v[a] / floor[a] for a in axes} if v else None)
                                        for n, v in one["refined"].items()}

@@ -184,7 +184,7 @@ def test_json_round_trip(cal, analytic, tmp_path):
     _, r = analytic
     path = cal.save(tmp_path / "c.json")
     doc = json.loads(path.read_text())
-    assert doc["schema"] == "optitact.calibration" and doc["schema_version"] == 2
+    assert doc["schema"] == "optitact.calibration" and doc["schema_version"] == 3 and doc["elements"]["shape"] is None
     assert doc["model"] == "coupled" and doc["fingerprint"] == cal.fingerprint
     back = Calibration.load(path, sensor=SENSOR, camera=SMALL)
     np.testing.assert_array_equal(back.forces(r)[0], cal.forces(r)[0])
@@ -224,7 +224,7 @@ def test_fingerprint_mismatch(cal, tmp_path):
 
 
 @pytest.mark.parametrize("edit, match", [
-    (lambda d: d.update(schema_version=3), "schema version"),
+    (lambda d: d.update(schema_version=4), "schema version"),
     (lambda d: d.update(schema="other"), "not an optitact calibration"),
     (lambda d: d.pop("elements"), "missing 'elements'"),
     (lambda d: d.update(model="magic"), "model must be one of"),

@@ -1,6 +1,6 @@
 """A refinement of a starting calibration that cannot lose to its start on presses it did not fit.
 
-``fit_presses(start=...)`` tries per element a gain, a shear scale and a centroid shift, each kept only
+``fit_presses(start=..., method="groups")`` (the earlier refinement) tries per element a gain, a shear scale and a centroid shift, each kept only
 where it beats what the element had on held-out presses (k-fold over the element's presses). Fast
 tests use readings made by inverting known curves (``tests/calib/test_press_fit.py``): presses made by the
 start itself (nothing to gain: the noise would only hurt), and by a sensor whose brightness really
@@ -46,6 +46,7 @@ def refine(readings, forces, pressed, start, **kw):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cal = fit_presses(readings, forces, pressed=pressed, sensor=SENSOR, camera=start.camera, start=start,
+                          method="groups",
                           **kw)
     return cal, [str(w.message) for w in caught if issubclass(w.category, OptitactWarning)]
 
@@ -178,6 +179,7 @@ def test_cli_refinement_reports_what_it_kept_and_does_not_lose_to_the_start(user
             for t in frames for e in range(N_EL)]
         user.path(name).write_text("\n".join(rows) + "\n")
     r = user.run("calibrate", "fit", "--frames", "train", "--forces", "gauge.csv", "--start", "default",
+                 "--method", "groups",
                  "--out", "mine.json")
     assert r.returncode == 0, r.stderr
     cal = Calibration.load(user.path("mine.json"))

@@ -102,12 +102,17 @@ def test_refinement_from_default_starts_at_the_sensors_gains(shipped, moved):
         forces[t, :, 2] = f
         G[t] = reference_g(grid, fz, f) * GAINS
     readings = _readings(G, np.zeros((6, 41, 2)))
-    cal = fit_presses(readings, forces, sensor=BUILT, camera=CAM, start="default")
-    np.testing.assert_allclose(cal.provenance["gain"], 1.0, rtol=0, atol=2e-3)
-    assert cal.provenance["start"] == moved.fingerprint
-    assert cal.provenance["start_provenance"]["transferred_from"] == shipped.fingerprint
-    est, _ = cal.forces(readings)
-    np.testing.assert_allclose(est[..., 2], forces[..., 2], rtol=0, atol=2e-3)
+    for method in ("groups", "shapes"):
+        cal = fit_presses(readings, forces, sensor=BUILT, camera=CAM, start="default", method=method)
+        if method == "groups":
+            np.testing.assert_allclose(cal.provenance["gain"], 1.0, rtol=0, atol=2e-3)
+        else:  # every element's force scale and exponent stay the transferred curves'
+            np.testing.assert_allclose(cal.provenance["theta"]["log_scale"], 0.0, rtol=0, atol=2e-3)
+            np.testing.assert_allclose(cal.provenance["theta"]["exponent"], 0.0, rtol=0, atol=5e-3)
+        assert cal.provenance["start"] == moved.fingerprint
+        assert cal.provenance["start_provenance"]["transferred_from"] == shipped.fingerprint
+        est, _ = cal.forces(readings)
+        np.testing.assert_allclose(est[..., 2], forces[..., 2], rtol=0, atol=2e-3)
 
 
 # ----------------------------------------------------------------------------- optitact process --setup

@@ -28,7 +28,9 @@ WORKFLOW = ("the own-sensor workflow: tests/test_workflows.py runs these lines a
 PAGES = {page.name: page for page in (
     Page(DOCS / "getting_started.md", skipped=INSTALL, min_python=1),  # README's example: test_readme runs it
     Page(DOCS / "guides/index.md"),
-    Page(DOCS / "guides/rendering.md", quick=SMALL, needs=("mitsuba",), min_python=1),
+    Page(DOCS / "guides/rendering.md", quick=SMALL, needs=("mitsuba",), min_python=1,
+         run=frozenset({"optitact render --indenter sphere:radius=5 --at 30,40 --force 0.8 --slide 0.1,0 "
+                        "--width 160 --height 120 --spp 4 --out pressed.png --forces-out pressed.csv"})),
     Page(DOCS / "guides/pipeline.md", quick=SMALL, needs=("mitsuba",), min_python=2,
          run=frozenset({"optitact process --help",
                         "optitact process frames.npy --baseline noload.npy --out readings.csv"})),

@@ -105,7 +105,7 @@ def test_broken_calibration_files_load_right_or_fail_clearly(cal_doc, tmp_path_f
         with pytest.raises(InputError, match="not a JSON calibration"):
             load()
     elif kind == "wrong_version":
-        doc["schema_version"] = [0, 3, -1, "2", None, True, 1.5, [2]][int(rng.integers(8))]
+        doc["schema_version"] = [0, 4, -1, "2", None, True, 1.5, [2]][int(rng.integers(8))]
         path.write_text(json.dumps(doc))
         with pytest.raises(InputError, match="schema version"):
             load()
@@ -156,7 +156,7 @@ def test_calibration_files_of_schema_version_1_load_as_version_1(cal_doc, tmp_pa
     """Version 1 held u0 only when a fit found one (and files before it none): such files load, and a
     coupled one without u0 says that its shear curves go without; version 2 needs u0, null or not."""
     cal, doc = cal_doc
-    assert doc["schema_version"] == 2 and doc["model"] == "coupled" and cal.u0 is not None
+    assert doc["schema_version"] == 3 and doc["model"] == "coupled" and cal.u0 is not None
     path = tmp_path / "c.json"
     old = json.loads(json.dumps(doc)) | {"schema_version": 1}
     path.write_text(json.dumps(old))
@@ -179,7 +179,21 @@ def test_calibration_files_of_schema_version_1_load_as_version_1(cal_doc, tmp_pa
     del new["elements"]["u0"]
     path.write_text(json.dumps(new))
     with pytest.raises(InputError, match=rf"^{re.escape(str(path))}: calibration elements are missing 'u0' "
-                                         rf".* schema version 2 requires"):
+                                         rf".* schema version 3 requires"):
+        Calibration.load(path)
+    new["elements"]["u0"] = None  # version 3 needs the elements' shapes too, null or not
+    del new["elements"]["shape"]
+    path.write_text(json.dumps(new))
+    with pytest.raises(InputError, match=r"missing 'shape' .* schema version 3 requires"):
+        Calibration.load(path)
+    new["elements"]["shape"] = np.tile([0.05, -0.02, 0.01], (len(cal.g), 1)).tolist()
+    path.write_text(json.dumps(new))
+    shaped = Calibration.load(path)
+    np.testing.assert_array_equal(shaped.shape[-1], [0.05, -0.02, 0.01])
+    assert Calibration.from_dict(shaped.to_dict()).shape.tolist() == new["elements"]["shape"]
+    new["elements"]["shape"][-1] = [0.9, 0.0, 0.0]  # a factor of 2.5: not the element the curves describe
+    path.write_text(json.dumps(new))
+    with pytest.raises(InputError, match=r"shape must be finite, each value within \+-0.5"):
         Calibration.load(path)
     old["elements"]["u0"] = None  # version 1 never wrote null
     path.write_text(json.dumps(old))
