@@ -83,12 +83,14 @@ def add_parsers(sub) -> None:
                     "clip.avi#12, or a 0-based index into the frames in order; elements and frames "
                     "without a row are unloaded; a unit in brackets, 'Fz (mN)', is converted: N, mN, kN, "
                     "gf, kgf, lbf, ozf). From scratch each element needs 8 presses; --start refines a "
-                    "calibration from as few as 2 per element: a gain on G, a scale on the shear curve and "
-                    "a shift of the zero-shear centroid, each kept per element only where it beats the "
-                    "start on held-out presses (5-fold over each element's presses, leave-one-out below "
-                    "5, seeded; the figures go to stderr and the file's provenance); elements pressed "
-                    "less keep its curves. Write the curves as JSON; --plot saves them with their "
-                    "residuals.")
+                    "calibration from as few as 2 per element: every element's own curve shape, shrunk "
+                    "toward the start by a prior shared over each ring whose strength 5-fold "
+                    "cross-validation over the presses chooses; the held-out presses give the calibration "
+                    "its error model (--method groups: the earlier gain, shear scale and centroid shift). "
+                    "Or fit to a six-axis force/torque sensor's totals of objects pressed on the dome: "
+                    "--frames FRAMES --wrench ft.csv --ft-pose X,Y,Z[,RX,RY,RZ] (with --forces too where "
+                    "there are single presses). The figures go to stderr and the file's provenance. Write "
+                    "the curves as JSON; --plot saves them with their residuals.")
     fitp.add_argument("set", type=Path, nargs="?", default=None, metavar="SET.zarr",
                       help="a calibration set (or give --frames and --forces)")
     fitp.add_argument("--model", choices=("ohka", "coupled"), default=None,

@@ -53,7 +53,10 @@ PAGES = {page.name: page for page in (
         "optitact calibrate test --frames held/ --forces held.csv --calibration default --setup setup.json",
         "optitact calibrate test --frames held/ --forces held.csv --calibration mysensor.json "
         "--plot errors.png",
-        "optitact process --camera 0 --calibration mysensor.json --out live.csv")}),
+        "optitact process --camera 0 --calibration mysensor.json --out live.csv")} | {
+        "optitact calibrate fit --frames presses/ --wrench ft.csv --ft-pose 0,0,-30 --setup setup.json "
+        "--out mysensor.json": "run outside in on rendered object presses by "
+                               "tests/calib/test_element_shapes.py::test_cli_wrench_calibration_outside_in"}),
     Page(DOCS / "guides/live.md", quick=SMALL, needs=("mitsuba",), min_python=1,
          run=frozenset({"optitact process --camera clip.avi --out live.csv"})),
     Page(DOCS / "guides/taxels.md", needs=("matplotlib", "sklearn", "dtaidistance"), min_python=2,
