@@ -13,8 +13,9 @@ it. This module fits, per element ``e``, seven parameters ``theta_e``
 curve's brightness-gradient term (``s = G / g_scale``: an element whose light
 falls across it otherwise than the synthetic one's reads another Fz under
 shear) and ``q = Fz / (a + b sqrt(Fz))`` the coupled shear curve's slope (N per
-mm of centroid; gradient and shifts are for the coupled model only). The scale and exponent change the *shape* of the normal
-curve, not only its gain: an element whose rubber deforms under ``F`` as the
+mm of centroid; gradient and shifts are for the coupled model only). The scale and
+exponent change the *shape* of the normal curve, not only its gain: an element whose rubber
+deforms under ``F`` as the
 design's under ``s F (Fz / F_ref)^g`` reads ``F0 = s F (Fz / F_ref)^g``, which
 a scale ``-log s / (1 + g)`` and an exponent ``-g / (1 + g)`` undo exactly.
 
@@ -56,8 +57,10 @@ from optitact.errors import InputError
 from optitact.calib.curves import FZ_FLOOR
 from optitact.calib.fit import MAX_SHAPE, SHAPE_REF_N, Calibration
 
-__all__ = ["FOLDS", "NP", "PARAMETERS", "SHAPE_PARAMETERS", "PINNED", "PRIOR_WIDTH", "STRENGTHS", "Observations", "ShapeFit",
-           "fit_shapes", "gradient_term", "press_observations", "prior_sigma", "shaped", "shear_elasticity", "shear_slope", "wrench_observations"]
+__all__ = ["FOLDS", "NORMAL", "NP", "PARAMETERS", "SHAPE_PARAMETERS", "PINNED", "PRIOR_WIDTH", "STRENGTHS",
+           "Observations", "ShapeFit", "fit_shapes", "gradient_term", "press_observations", "prior_sigma",
+           "shaped",
+           "shear_elasticity", "shear_slope", "wrench_observations"]
 
 #: The per-element parameters, in the order of :attr:`ShapeFit.theta`.
 PARAMETERS = ("log_scale", "exponent", "log_shear", "gradient_x", "gradient_y", "shift_x", "shift_y")
@@ -139,6 +142,7 @@ class Observations:
 
     @property
     def n_units(self) -> int:
+        """How many cross-validation units (presses, frames) the observations hold."""
         return len(self.stratum)
 
     @staticmethod
@@ -157,7 +161,8 @@ class Observations:
                             block_diag([p.mix for p in parts], format="csr"),
                             np.concatenate([p.value for p in parts]), np.concatenate([p.sigma for p in parts]),
                             np.concatenate([p.unit + o for p, o in zip(parts, offsets, strict=True)]),
-                            np.concatenate([p.stratum for p in parts]), np.concatenate([p.model_var for p in parts]),
+                            np.concatenate([p.stratum for p in parts]),
+                            np.concatenate([p.model_var for p in parts]),
                             np.concatenate([p.noise_var for p in parts]))
 
 
@@ -398,8 +403,10 @@ def fit_shapes(start: Calibration, obs: Observations, *, seed: int = 0, strength
 
 
 def shaped(start: Calibration, theta: np.ndarray, **fields) -> Calibration:
-    """``start`` with the elements' parameters ``theta`` (E, NP): the shape, the gradient added to ``gu`` and
-    the shifts to ``u0``."""
+    """``start`` with the elements' parameters ``theta`` (E, NP): the shape; the gradient added to ``gu``.
+
+    The centroid shifts go to ``u0``; other fields (e.g. ``sensor``) are replaced by ``fields``.
+    """
     theta = np.asarray(theta, dtype=np.float64)
     shape = theta[:, :SHAPE_PARAMETERS]
     u0, gu = start.u0, start.gu
@@ -449,7 +456,6 @@ def press_observations(start: Calibration, readings, forces, t_idx, e_idx, noise
     base_cal = replace(start, shape=None)
     full = base_cal.forces(readings)[0]
     est = full[t_idx, e_idx]
-    model = prior_sigma(start, full)[t_idx, e_idx] ** 2
     floor = prior_sigma(start, full, floor_only=True)[t_idx, e_idx] ** 2
     n = len(t_idx)
     by_axis = np.zeros((3 * n, 6))
@@ -465,7 +471,7 @@ def press_observations(start: Calibration, readings, forces, t_idx, e_idx, noise
 
 
 def shear_slope(cal: Calibration, fz, e_idx) -> np.ndarray:
-    """The coupled shear curve's slope ``Fz / (a + b sqrt(Fz))`` (N/mm) of elements ``e_idx`` at ``fz`` (0 for ohka)."""
+    """The coupled shear curve's slope ``Fz / (a + b sqrt(Fz))`` (N/mm) of elements ``e_idx`` (0: ohka)."""
     fz = np.maximum(np.asarray(fz, dtype=np.float64), 0.0)
     if cal.model != "coupled":
         return np.zeros_like(fz)
@@ -473,7 +479,7 @@ def shear_slope(cal: Calibration, fz, e_idx) -> np.ndarray:
 
 
 def wrench_observations(start: Calibration, readings, wrench, matrix, noise) -> Observations:
-    """A force/torque sensor's frames as :class:`Observations`: each frame observes the wrench of all its elements.
+    """A force/torque sensor's frames as :class:`Observations`: each observes the wrench of all its elements.
 
     Parameters
     ----------
@@ -503,13 +509,14 @@ def wrench_observations(start: Calibration, readings, wrench, matrix, noise) -> 
     base = est[t_idx, e_idx]
     sq = mix.multiply(mix)
     fz2 = np.repeat(base_fz2 := est[t_idx, e_idx, 2] ** 2, 3).reshape(-1, 3)
-    model = np.stack([sq @ np.where(np.arange(3) == a, 1.0, 0.0)[None, :].repeat(n, 0).ravel() for a in range(3)]
-                     + [sq @ (np.where(np.arange(3) == a, 1.0, 0.0)[None, :] * fz2).ravel() for a in range(3)],
-                     axis=1)
+    axis_of = [np.where(np.arange(3) == a, 1.0, 0.0)[None, :] for a in range(3)]
+    model = np.stack([sq @ np.repeat(x, n, axis=0).ravel() for x in axis_of]
+                     + [sq @ (x * fz2).ravel() for x in axis_of], axis=1)
     del base_fz2
     floor = sq @ (prior_sigma(start, est, floor_only=True)[t_idx, e_idx] ** 2).ravel()
     sigma = np.sqrt(floor + np.asarray(noise, dtype=np.float64).ravel() ** 2 + 1e-12)
-    return Observations(base, shear_slope(start, base[:, 2], e_idx), gradient_term(start, readings, t_idx, e_idx),
+    return Observations(base, shear_slope(start, base[:, 2], e_idx),
+                        gradient_term(start, readings, t_idx, e_idx),
                         shear_elasticity(start, base[:, 2], e_idx), e_idx, mix,
                         np.asarray(wrench, dtype=np.float64).ravel(), sigma,
                         np.repeat(np.arange(len(wrench)), 6), np.full(len(wrench), -1), model,
@@ -517,7 +524,7 @@ def wrench_observations(start: Calibration, readings, wrench, matrix, noise) -> 
 
 
 def gradient_term(cal: Calibration, readings, t_idx, e_idx) -> np.ndarray:
-    """The coupled normal curve's brightness-gradient term ``s u / u_scale`` (n, 2) of the samples (0 for ohka)."""
+    """The coupled normal curve's brightness-gradient term ``s u / u_scale`` (n, 2) of the samples (0: ohka)."""
     n = len(t_idx)
     if cal.model != "coupled":
         return np.zeros((n, 2))
@@ -527,7 +534,10 @@ def gradient_term(cal: Calibration, readings, t_idx, e_idx) -> np.ndarray:
 
 
 def shear_elasticity(cal: Calibration, fz, e_idx) -> np.ndarray:
-    """``d log(shear) / d log(Fz)`` of the coupled shear curve, ``(a + b sqrt(Fz) / 2) / (a + b sqrt(Fz))`` (0 for ohka)."""
+    """``d log(shear) / d log(Fz)`` of the coupled shear curve (0 for ohka).
+
+    ``(a + b sqrt(Fz) / 2) / (a + b sqrt(Fz))`` of elements ``e_idx`` at ``fz``.
+    """
     fz = np.maximum(np.asarray(fz, dtype=np.float64), 0.0)
     if cal.model != "coupled":
         return np.zeros_like(fz)

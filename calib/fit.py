@@ -141,8 +141,8 @@ class Calibration:
         if self.shape is not None:
             a = np.array(self.shape, dtype=np.float64)
             if a.shape != (len(self.g), 3):
-                raise ShapeError(f"shape must have shape {(len(self.g), 3)} (log_scale, exponent, log_shear per "
-                                 f"element), got {a.shape}")
+                raise ShapeError(f"shape must have shape {(len(self.g), 3)} (log_scale, exponent, log_shear "
+                                 f"per element), got {a.shape}")
             if not (np.isfinite(a).all() and np.all(np.abs(a) <= MAX_SHAPE)):
                 raise InputError(f"shape must be finite, each value within +-{MAX_SHAPE:g} (log scales and an "
                                  f"exponent of the force), got values up to {np.nanmax(np.abs(a)):.3g}")
@@ -406,8 +406,8 @@ class Calibration:
             tol = np.array([0.0, 0.0, tolerance])
             model = replace(model, relative=np.hypot(model.relative, tol),
                             shear=np.hypot(model.shear, tolerance - tol),
-                            source=f"{model.source}; transferred to another sensor: + {100 * tolerance:g} % per "
-                                   f"element")
+                            source=f"{model.source}; transferred to another sensor: + "
+                                   f"{100 * tolerance:g} % per element")
         return replace(self, sensor=sensor, camera=camera, pipeline_options=options,
                        g_scale=self.g_scale * k, g_max=self.g_max * k, error_model=model,
                        provenance={"transferred_from": self.fingerprint, "source_provenance": self.provenance,

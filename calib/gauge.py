@@ -54,8 +54,6 @@ byte-order mark, a binary file) is refused, and so is a line longer than
 
 from __future__ import annotations
 
-import codecs
-import csv
 import math
 import os
 import re
@@ -67,13 +65,13 @@ import numpy as np
 
 from optitact._validate import check_type
 from optitact.errors import InputError, ShapeError
-from optitact.io.tables import column_key, csv_numbers, sniff_delimiter
+from optitact.io.tables import column_key, csv_numbers, text_rows
 from optitact.pipeline.readings import Readings
 from optitact.optics.sensor import DomeSensor
 from optitact.io.tables import FORCE_UNITS, MASS_UNITS, force_unit
 
-__all__ = ["GAUGE_UNITS", "MAX_GAUGE_FORCE_N", "MAX_LINE_CHARS", "Presses", "check_presses", "measure_presses",
-           "read_presses"]
+__all__ = ["GAUGE_UNITS", "MAX_GAUGE_FORCE_N", "MAX_LINE_CHARS", "Presses", "check_presses", "frame_of",
+           "measure_presses", "read_presses"]
 
 _REFERENCES = ("local", "global")
 _COLUMNS = ("frame", "element", "fx", "fy", "fz")
@@ -110,8 +108,12 @@ class Presses:
 
 
 # ---------------------------------------------------------------------------- the gauge CSV
-def _frame_index(cell: str, sources: Sequence[str], by_name: dict, path, lineno: int, col: int) -> int:
-    """The frame a ``frame`` cell names: a source name or a 0-based index."""
+def frame_of(cell: str, sources: Sequence[str], by_name: dict, path, lineno: int, col: int) -> int | None:
+    """The frame a CSV's ``frame`` cell names, or None where it names none.
+
+    A source name (``by_name``: name -> frame indices) or a 0-based index into ``sources``. A name of
+    several frames (files of one name in different folders) is refused, naming the line and column.
+    """
     if cell in by_name:
         hits = by_name[cell]
         if len(hits) > 1:
@@ -125,55 +127,18 @@ def _frame_index(cell: str, sources: Sequence[str], by_name: dict, path, lineno:
         k = math.nan
     if k.is_integer() and 0 <= k < len(sources):
         return int(k)
+    return None
+
+
+def _frame_index(cell: str, sources: Sequence[str], by_name: dict, path, lineno: int, col: int) -> int:
+    """:func:`frame_of`, with an error naming the frames where it names none."""
+    t = frame_of(cell, sources, by_name, path, lineno, col)
+    if t is not None:
+        return t
     shown = ", ".join(repr(s) for s in sources[:3]) + (", ..." if len(sources) > 3 else "")
     raise InputError(f"{path}, line {lineno}, column {col}: frame {cell!r} is not one of the {len(sources)} "
                      f"frames: name it as the 'source' column of optitact process does ({shown}) or by its "
                      f"0-based index 0..{len(sources) - 1}")
-
-
-def _decode(path: Path) -> str:
-    """The text of a gauge CSV: UTF-8 (BOM or not), UTF-16 with a BOM, else Windows-1252 (or Latin-1)."""
-    data = path.read_bytes()
-    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
-        encoding = "utf-16"
-    else:
-        encoding = "utf-8-sig"
-    try:
-        text = data.decode(encoding)
-    except UnicodeDecodeError as exc:
-        if encoding == "utf-16" or b"\x00" in data:
-            raise InputError(f"{path}: not a text file in UTF-8 or UTF-16 ({encoding} fails at byte "
-                             f"{exc.start}); save the gauge CSV as UTF-8 (Excel: 'CSV UTF-8')") from None
-        try:  # Excel's "CSV" on Western Windows; its digits, signs and ASCII names read the same
-            text = data.decode("cp1252")
-        except UnicodeDecodeError:
-            text = data.decode("latin-1")
-    if "\x00" in text:
-        raise InputError(f"{path}: holds NUL characters: UTF-16 without a byte-order mark, or not a text file; "
-                         f"save the gauge CSV as UTF-8 (Excel: 'CSV UTF-8') or UTF-16 with a byte-order mark")
-    return text
-
-
-def _gauge_rows(path: Path) -> list[tuple[int, list[str]]]:
-    """Non-blank, non-comment rows of the gauge CSV as ``(line number, stripped cells)``."""
-    lines = _decode(path).splitlines()
-    for lineno, line in enumerate(lines, start=1):
-        if len(line) > MAX_LINE_CHARS:
-            raise InputError(f"{path}, line {lineno}: {len(line)} characters long, more than the "
-                             f"{MAX_LINE_CHARS} a gauge CSV line may have (a frame, an element and three "
-                             f"forces); is this the gauge's CSV?")
-    content = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
-    delimiter = sniff_delimiter(content, path) if content else ","
-    reader = csv.reader(lines, delimiter=delimiter)
-    rows: list[tuple[int, list[str]]] = []
-    try:
-        for row in reader:
-            cells = [c.strip() for c in row]
-            if any(cells) and not cells[0].startswith("#"):
-                rows.append((reader.line_num, cells))
-    except csv.Error as exc:
-        raise InputError(f"{path}, line {reader.line_num + 1}: not a CSV row ({exc})") from None
-    return rows
 
 
 def _unit_factor(cell: str, path, lineno: int, col: int) -> float:
@@ -263,7 +228,8 @@ def read_presses(path: str | os.PathLike, sources: Sequence[str], sensor: DomeSe
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"force gauge file not found: {path}")
-    rows = _gauge_rows(path)
+    rows = text_rows(path, what="gauge CSV", max_chars=MAX_LINE_CHARS, columns=_COLUMNS,
+                     holds="a frame, an element and three forces")
     if not rows:
         raise ShapeError(f"{path}: empty; expected a header {', '.join(_COLUMNS)} and one row per frame and "
                          f"pressed element")

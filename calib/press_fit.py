@@ -71,7 +71,9 @@ from optitact.calib.document import PIPELINE_KEYS
 from optitact.calib.fit import Calibration
 from optitact.calib.gauge import Presses, check_presses, measure_presses
 
-__all__ = ["EVIDENCE", "GAUGE_NOISE", "GROUPS", "METHODS", "fit_element_shapes", "MIN_PRESSES_REFINE", "MIN_PRESSES_SCRATCH", "MIN_PRESSES_TO_TELL",
+__all__ = ["EVIDENCE", "GAUGE_NOISE", "GROUPS", "METHODS", "MIN_FLOOR_N", "fit_element_shapes",
+           "MIN_PRESSES_REFINE",
+           "MIN_PRESSES_SCRATCH", "MIN_PRESSES_TO_TELL",
            "REFINE_FOLDS", "fit_from_frames", "fit_presses", "error_model_of_totals", "untransferred"]
 
 #: How a start is refined (:func:`fit_presses`): each element's own shape, or the earlier groups.
@@ -560,7 +562,8 @@ def fit_element_shapes(start: Calibration, readings: Readings, f, usable, n_pres
         own = untransferred(start.error_model, start.provenance.get("transfer_tolerance", 0.0))
         error_model = error_model_of_totals(own, fit.held_out_obs[rows] - extra.value, extra.model_var,
                                             extra.noise_var,
-                                            source=f"{extra.n_units} force/torque frames, held out ({FOLDS_NOTE})")
+                                            source=f"{extra.n_units} force/torque frames, held out "
+                                                   f"({FOLDS_NOTE})")
     else:
         error_model = None
     est, _ = cal.forces(readings)
@@ -626,8 +629,11 @@ def error_model_of_totals(model, residuals, design, noise_var, *, source: str):
 
 
 def untransferred(model, tolerance: float):
-    """``model`` without the part :meth:`Calibration.transferred <optitact.calib.fit.Calibration.transferred>`
-    added for another sensor's elements (``tolerance`` relative; the fit to that sensor removes it)."""
+    """``model`` without what a transfer added for another sensor's elements (``tolerance`` relative).
+
+    :meth:`Calibration.transferred <optitact.calib.fit.Calibration.transferred>` adds it; a fit to
+    that sensor removes it.
+    """
     if not tolerance:
         return model
     tol = np.array([0.0, 0.0, tolerance])

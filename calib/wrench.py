@@ -75,8 +75,6 @@ and lines starting with ``#`` are ignored.
 
 from __future__ import annotations
 
-import codecs
-import csv
 import json
 import math
 import os
@@ -88,9 +86,9 @@ from pathlib import Path
 import numpy as np
 
 from optitact._validate import check_keys, check_type, integer, json_numbers, real_array
-from optitact.calib.gauge import MAX_LINE_CHARS
+from optitact.calib.gauge import MAX_LINE_CHARS, frame_of
 from optitact.errors import InputError, ShapeError
-from optitact.io.tables import FORCE_UNITS, MASS_UNITS, column_key, force_unit, sniff_delimiter
+from optitact.io.tables import FORCE_UNITS, MASS_UNITS, column_key, force_unit, text_rows
 from optitact.optics.camera import rotation_from_rvec
 from optitact.optics.sensor import DomeSensor
 
@@ -687,55 +685,6 @@ class Wrenches:
         return self.wrench[:, 3:]
 
 
-def _decode(path: Path) -> str:
-    """The text of a wrench CSV: UTF-8 (BOM or not), UTF-16 with a BOM, else Windows-1252 (or Latin-1)."""
-    data = path.read_bytes()
-    encoding = "utf-16" if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) else "utf-8-sig"
-    try:
-        text = data.decode(encoding)
-    except UnicodeDecodeError as exc:
-        if encoding == "utf-16" or b"\x00" in data:
-            raise InputError(f"{path}: not a text file in UTF-8 or UTF-16 ({encoding} fails at byte "
-                             f"{exc.start}); save the wrench CSV as UTF-8 (Excel: 'CSV UTF-8')") from None
-        try:  # Excel's "CSV" on Western Windows; its digits, signs and ASCII names read the same
-            text = data.decode("cp1252")
-        except UnicodeDecodeError:
-            text = data.decode("latin-1")
-    if "\x00" in text:
-        raise InputError(f"{path}: holds NUL characters: UTF-16 without a byte-order mark, or not a text file; "
-                         f"save the wrench CSV as UTF-8 (Excel: 'CSV UTF-8') or UTF-16 with a byte-order mark")
-    return text
-
-
-def _rows(path: Path) -> list[tuple[int, list[str]]]:
-    """Non-blank, non-comment rows of the wrench CSV as ``(line number, stripped cells)``."""
-    lines = _decode(path).splitlines()
-    for lineno, line in enumerate(lines, start=1):
-        if len(line) > MAX_LINE_CHARS:
-            raise InputError(f"{path}, line {lineno}: {len(line)} characters long, more than the "
-                             f"{MAX_LINE_CHARS} a wrench CSV line may have (a frame and six numbers); is "
-                             f"this the F/T sensor's CSV?")
-    content = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
-    try:
-        delimiter = sniff_delimiter(content, path) if content else ","
-    except InputError:  # csv.Sniffer gives up on rows of unequal width: let the header tell, when it can
-        fits = [d for d in ",;\t"
-                if set(_COLUMNS) <= {column_key(c) for c in next(csv.reader([content[0]], delimiter=d))}]
-        if len(fits) != 1:
-            raise
-        delimiter = fits[0]
-    reader = csv.reader(lines, delimiter=delimiter)
-    rows: list[tuple[int, list[str]]] = []
-    try:
-        for row in reader:
-            cells = [c.strip() for c in row]
-            if any(cells) and not cells[0].startswith("#"):
-                rows.append((reader.line_num, cells))
-    except csv.Error as exc:
-        raise InputError(f"{path}, line {reader.line_num + 1}: not a CSV row ({exc})") from None
-    return rows
-
-
 def _glued_unit(key: str) -> str | None:
     """``'tz_nmm'`` -> ``'tz'``, ``'fz_mn'`` -> ``'fz'`` (a column's unit glued to its name), else None."""
     m = re.fullmatch(r"([ft][xyz])[\s_/-]+(.+)", key)
@@ -774,24 +723,6 @@ def _number(cell: str, what: str, path, lineno: int, col: int, header: str) -> f
         raise InputError(f"{path}, line {lineno}, column {col} ({header!r}): expected a finite number "
                          f"({what}), got {cell!r} ({got}){hint}")
     return v
-
-
-def _frame_index(cell: str, sources: Sequence[str], by_name: dict, path, lineno: int, col: int) -> int | None:
-    """The frame a ``frame`` cell names (a source name or a 0-based index), or None for no frame."""
-    if cell in by_name:
-        hits = by_name[cell]
-        if len(hits) > 1:
-            raise InputError(f"{path}, line {lineno}, column {col}: frame {cell!r} names {len(hits)} frames "
-                             f"(frames {', '.join(map(str, hits[:5]))}: files of the same name in different "
-                             f"folders); name the frame by its 0-based index instead")
-        return hits[0]
-    try:
-        k = float(cell)
-    except ValueError:
-        k = math.nan
-    if k.is_integer() and 0 <= k < len(sources):
-        return int(k)
-    return None
 
 
 def read_wrench(path: str | os.PathLike, sources: Sequence[str], *, pose: SensorPose | None = None,
@@ -848,7 +779,8 @@ def read_wrench(path: str | os.PathLike, sources: Sequence[str], *, pose: Sensor
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"F/T sensor wrench file not found: {path}")
-    rows = _rows(path)
+    rows = text_rows(path, what="wrench CSV", max_chars=MAX_LINE_CHARS, columns=_COLUMNS,
+                     holds="a frame and six numbers")
     if not rows:
         raise ShapeError(f"{path}: empty; expected a header {', '.join(_COLUMNS)} and one row per frame")
     header_line, first = rows[0]
@@ -891,7 +823,7 @@ def read_wrench(path: str | os.PathLike, sources: Sequence[str], *, pose: Sensor
         if len(cells) != len(header):
             raise ShapeError(f"{path}, line {lineno}: expected {len(header)} columns ({', '.join(first)}), got "
                              f"{len(cells)}")
-        t = _frame_index(cells[col["frame"]], sources, by_name, path, lineno, col["frame"] + 1)
+        t = frame_of(cells[col["frame"]], sources, by_name, path, lineno, col["frame"] + 1)
         if t is None:
             unknown.append((cells[col["frame"]], lineno))
             continue

@@ -125,8 +125,8 @@ def fit_wrenches(readings: Readings, wrenches: Wrenches, pose: SensorPose, *, se
                          f"({both.size} such frame(s)); a frame is one or the other")
     usable = readings.contact & ~readings.saturated
     n_press = np.sum(pressed & usable, axis=0)
-    sub = Readings(readings.G[frames], readings.u[frames], readings.contact[frames] & ~readings.saturated[frames],
-                   readings.saturated[frames])
+    seen = readings.contact[frames] & ~readings.saturated[frames]
+    sub = Readings(readings.G[frames], readings.u[frames], seen, readings.saturated[frames])
     keep = sub.contact.any(axis=1)
     if keep.sum() < 2:
         raise InputError(f"{int(keep.sum())} of the {frames.size} frames with a wrench show contact; a fit "

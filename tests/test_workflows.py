@@ -175,7 +175,8 @@ def test_own_sensor_workflow_from_an_opencv_fisheye_file(user):
         r = _ok(user.run("calibrate", "test", "--frames", "held/", "--forces", "held.csv", *args, "--json"))
         reports[name] = json.loads(r.stdout)
     assert reports["transferred"]["presses"] == 3 * 41 and user.path("errors.png").stat().st_size > 0
-    print(fit.stderr, {k: (v["rmse_pct_fs"], v["coverage_90"]) for k, v in reports.items()})  # the guide's figures
+    # the guide's figures (pytest -s)
+    print(fit.stderr, {k: (v["rmse_pct_fs"], v["coverage_90"]) for k, v in reports.items()})
     for k in ("fx", "fy", "fz"):
         # README (640x480): 1.2-1.8 % FS transferred, 0.5-1.4 % FS refined from 5 presses
         assert reports["transferred"]["rmse_pct_fs"][k] < 4.0, reports["transferred"]

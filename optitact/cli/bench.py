@@ -150,7 +150,8 @@ def add_parsers(sub) -> None:
                     "objects pressed on the dome, and with the stand-in's own synthetic calibration (the "
                     "matched floor), with the 90 % interval coverage of each calibration's own error model. "
                     "The stand-ins have, switchable, physics the package does not model: per-element rubber "
-                    "stiffness and nonlinearity, lens blur, vignetting and pixel response non-uniformity. The first run path-traces the no-load frame of the "
+                    "stiffness and nonlinearity, lens blur, vignetting and pixel response non-uniformity. "
+                    "The first run path-traces the no-load frame of the "
                     "default camera once (about a minute, cached); then about a minute per force stand-in.")
     breal.add_argument("--sensors", type=positive_int, default=10,
                        help="stand-ins registered (default 10)")
@@ -158,9 +159,11 @@ def add_parsers(sub) -> None:
                        help="of those, how many get the force study (default 2)")
     breal.add_argument("--presses", type=positive_int, nargs="+", default=[2, 5, 10, 20], metavar="N",
                        help="presses per element of the measured calibrations (default 2 5 10 20)")
-    breal.add_argument("--wrench-frames", type=positive_int, nargs="*", default=[50, 100, 200, 400], metavar="N",
+    breal.add_argument("--wrench-frames", type=positive_int, nargs="*", default=[50, 100, 200, 400],
+                       metavar="N",
                        help="frames of the wrench protocol (random objects pressed near every element in turn, "
-                            "a six-axis F/T sensor's totals with 0.5 %% noise, no single-element presses) of the "
+                            "a six-axis F/T sensor's totals with 0.5 %% noise, no single-element presses) "
+                            "of the "
                             "calibrations fitted to totals (default 50 100 200 400; none: skip)")
     breal.add_argument("--effects", nargs="*", default=None, metavar="EFFECT",
                        help="physics of a real sensor the package does not model, in the stand-ins: any of "

@@ -554,7 +554,8 @@ def _print_shapes(cal) -> None:
                      f"{1000 * w['start']['torque_nm']:.3f} -> {1000 * w['refined']['torque_nm']:.3f} N mm")
     if held["samples"]:
         parts.append(f"held-out RMSE over {held['samples']} presses, start -> fitted: " + ", ".join(
-            f"{k.capitalize()} {rmse['start'][k]:.4f} -> {rmse['refined'][k]:.4f} N" for k in ("fx", "fy", "fz")))
+            f"{k.capitalize()} {rmse['start'][k]:.4f} -> {rmse['refined'][k]:.4f} N"
+            for k in ("fx", "fy", "fz")))
     m = cal.error_model
     if m is not None:
         parts.append(f"error model from {m.source}: floor Fx {m.floor_n[0]:.4f}, Fy {m.floor_n[1]:.4f}, "
@@ -586,7 +587,8 @@ def _run_fit_wrench(args) -> int:
     cal.save(args.out)
     prov = cal.provenance
     counts = np.asarray(prov["wrench_frames_per_element"])
-    print(f"optitact: refined {args.start or 'default'}: each element's own shape, from {prov['wrench_frames']} "
+    print(f"optitact: refined {args.start or 'default'}: each element's own shape, from "
+          f"{prov['wrench_frames']} "
           f"force/torque frames ({int(counts.min())}-{int(counts.max())} loading each element)"
           + (f" and {int(np.sum(prov['presses_per_element']))} presses" if args.forces is not None else "")
           + f"; wrote {args.out}", file=sys.stderr)

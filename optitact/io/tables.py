@@ -32,7 +32,8 @@ import numpy as np
 from optitact.io.partial import OutputLock, PartialCSV, PartialParquet, remove_stray_partials
 from optitact.errors import InputError, ShapeError
 
-__all__ = ["FORCE_UNITS", "MASS_UNITS", "force_unit", "read_forces_csv", "write_forces_csv",
+__all__ = ["FORCE_UNITS", "MASS_UNITS", "decode_text", "force_unit", "text_rows", "read_forces_csv",
+           "write_forces_csv",
            "ReadingsWriter", "read_element_table", "csv_rows",
            "csv_numbers", "column_key", "sniff_delimiter", "partial_path", "per_frame_path",
            "PARQUET_ROW_GROUP", "table_files", "refuse_overwriting_inputs"]
@@ -146,6 +147,72 @@ def _csv_rows(path, delimiter: str | None = None) -> tuple[list[tuple[int, list[
             continue
         rows.append((lineno, cells))
     return rows, delimiter
+
+
+def decode_text(path: str | os.PathLike, what: str = "CSV") -> str:
+    """The text of a CSV file as spreadsheets write it: UTF-8, UTF-16 with a BOM, else Windows-1252.
+
+    UTF-8 with or without a byte-order mark; Windows-1252 is Excel's "CSV" on Western Windows
+    (Latin-1 where that fails).
+
+    Refused (:class:`~optitact.errors.InputError`, naming ``what``): UTF-16 without a byte-order
+    mark, a binary file (NUL characters).
+    """
+    import codecs
+
+    path = Path(path)
+    data = path.read_bytes()
+    encoding = "utf-16" if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) else "utf-8-sig"
+    try:
+        text = data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        if encoding == "utf-16" or b"\x00" in data:
+            raise InputError(f"{path}: not a text file in UTF-8 or UTF-16 ({encoding} fails at byte "
+                             f"{exc.start}); save the {what} as UTF-8 (Excel: 'CSV UTF-8')") from None
+        try:  # Excel's "CSV" on Western Windows; its digits, signs and ASCII names read the same
+            text = data.decode("cp1252")
+        except UnicodeDecodeError:
+            text = data.decode("latin-1")
+    if "\x00" in text:
+        raise InputError(f"{path}: holds NUL characters: UTF-16 without a byte-order mark, or not a text file; "
+                         f"save the {what} as UTF-8 (Excel: 'CSV UTF-8') or UTF-16 with a byte-order mark")
+    return text
+
+
+def text_rows(path: str | os.PathLike, *, what: str, max_chars: int, columns: Sequence[str] = (),
+              holds: str = "") -> list[tuple[int, list[str]]]:
+    """Non-blank, non-comment rows of a spreadsheet's CSV (:func:`decode_text`) as ``(line, stripped cells)``.
+
+    The delimiter is what :func:`sniff_delimiter` tells; where rows of unequal width leave it unsure,
+    the one delimiter whose split of the header holds every name in ``columns``. A line longer than
+    ``max_chars`` is refused (``holds``: what a line should hold, for the message).
+    """
+    path = Path(path)
+    lines = decode_text(path, what).splitlines()
+    for lineno, line in enumerate(lines, start=1):
+        if len(line) > max_chars:
+            raise InputError(f"{path}, line {lineno}: {len(line)} characters long, more than the "
+                             f"{max_chars} a {what} line may have{f' ({holds})' if holds else ''}; is this "
+                             f"the {what}?")
+    content = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
+    try:
+        delimiter = sniff_delimiter(content, path) if content else ","
+    except InputError:  # csv.Sniffer gives up on rows of unequal width: let the header tell, when it can
+        fits = [d for d in ",;\t" if columns and set(columns) <= {
+            column_key(c) for c in next(csv.reader([content[0]], delimiter=d))}]
+        if len(fits) != 1:
+            raise
+        delimiter = fits[0]
+    reader = csv.reader(lines, delimiter=delimiter)
+    rows: list[tuple[int, list[str]]] = []
+    try:
+        for row in reader:
+            cells = [c.strip() for c in row]
+            if any(cells) and not cells[0].startswith("#"):
+                rows.append((reader.line_num, cells))
+    except csv.Error as exc:
+        raise InputError(f"{path}, line {reader.line_num + 1}: not a CSV row ({exc})") from None
+    return rows
 
 
 def csv_numbers(cells: Sequence[str], path, lineno: int, first_column: int = 1) -> list[float]:

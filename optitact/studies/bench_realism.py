@@ -228,7 +228,7 @@ def draw_standin(seed: int, size: tuple[int, int] = (640, 480), effects=EFFECTS)
                                      cx=cx + rng.normal(0, 0.3), cy=cy + rng.normal(0, 0.3),
                                      dist=tuple(float(d * (1 + rng.normal(0, 0.02))) for d in dist),
                                      **pose_from_position((0.0, 0.0, z)))
-    rubber = np.random.default_rng([int(seed), 21])  # drawn apart: the geometry above is the same with or without
+    rubber = np.random.default_rng([int(seed), 21])  # drawn apart: the geometry above is the same either way
     stiffness = 1.0 + rubber.uniform(-STIFFNESS_SPREAD, STIFFNESS_SPREAD, n)
     nonlinearity = rubber.uniform(-NONLINEARITY_SPREAD, NONLINEARITY_SPREAD, n)
     return StandIn(sensor, camera, intrinsics, tuple(float(v) for v in rim), brightness, stiffness,
@@ -347,7 +347,8 @@ def _wrench_loads(n: int, sensor: DomeSensor, seed: int) -> np.ndarray:
         polar = math.degrees(sensor.element_polar[e]) + math.degrees(rng.normal(0, 3.0) / sensor.outer_radius)
         azimuth = math.degrees(sensor.element_azimuth[e]) + math.degrees(
             rng.normal(0, 3.0) / (sensor.outer_radius * max(math.sin(sensor.element_polar[e]), 0.2)))
-        pose = Pose.touching(sensor, float(np.clip(abs(polar), 0.0, 80.0)), azimuth, spin_deg=rng.uniform(0, 360))
+        pose = Pose.touching(sensor, float(np.clip(abs(polar), 0.0, 80.0)), azimuth,
+                             spin_deg=rng.uniform(0, 360))
         slide = rng.uniform(0, 0.3) * np.array([math.cos(a := rng.uniform(0, 2 * np.pi)), math.sin(a)])
         total = rng.uniform(0.2, 2.5)
         try:
@@ -445,7 +446,8 @@ def _press_calibrations(readings, gauge, n: int, reg, start, options: dict, seed
     sub = Readings(readings.G, readings.u, chosen, readings.saturated)
     forces = np.where(chosen[..., None], gauge, 0.0)
     out = {}
-    for kind, st, method in (("refined", start, "shapes"), ("groups", start, "groups"), ("scratch", None, None)):
+    kinds = (("refined", start, "shapes"), ("groups", start, "groups"), ("scratch", None, None))
+    for kind, st, method in kinds:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", OptitactWarning)

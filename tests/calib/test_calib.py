@@ -184,7 +184,8 @@ def test_json_round_trip(cal, analytic, tmp_path):
     _, r = analytic
     path = cal.save(tmp_path / "c.json")
     doc = json.loads(path.read_text())
-    assert doc["schema"] == "optitact.calibration" and doc["schema_version"] == 3 and doc["elements"]["shape"] is None
+    assert doc["schema"] == "optitact.calibration" and doc["schema_version"] == 3
+    assert doc["elements"]["shape"] is None
     assert doc["model"] == "coupled" and doc["fingerprint"] == cal.fingerprint
     back = Calibration.load(path, sensor=SENSOR, camera=SMALL)
     np.testing.assert_array_equal(back.forces(r)[0], cal.forces(r)[0])

@@ -235,7 +235,8 @@ def test_cli_wrench_calibration_outside_in(user):
                              seed=500 + t))
     pose = SensorPose.from_string("0,0,-30")
     wrench = element_wrench(SENSOR, pose, loads)
-    rows = ["frame,fx,fy,fz,tx (N*mm),ty (N*mm),tz (N*mm)"] + [f"f_{t + 1:04d}.png," + ",".join(f"{v:.9g}" for v in np.r_[w[:3], 1000 * w[3:]])
+    rows = ["frame,fx,fy,fz,tx (N*mm),ty (N*mm),tz (N*mm)"] + [
+        f"f_{t + 1:04d}.png," + ",".join(f"{v:.9g}" for v in np.r_[w[:3], 1000 * w[3:]])
                         for t, w in enumerate(wrench)]
     user.path("ft.csv").write_text("\n".join(rows) + "\n")
     user.path("held.csv").write_text("\n".join(

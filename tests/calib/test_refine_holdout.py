@@ -1,6 +1,7 @@
 """A refinement of a starting calibration that cannot lose to its start on presses it did not fit.
 
-``fit_presses(start=..., method="groups")`` (the earlier refinement) tries per element a gain, a shear scale and a centroid shift, each kept only
+``fit_presses(start=..., method="groups")`` (the earlier refinement) tries per element a gain, a shear
+scale and a centroid shift, each kept only
 where it beats what the element had on held-out presses (k-fold over the element's presses). Fast
 tests use readings made by inverting known curves (``tests/calib/test_press_fit.py``): presses made by the
 start itself (nothing to gain: the noise would only hurt), and by a sensor whose brightness really
