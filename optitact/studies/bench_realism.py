@@ -693,10 +693,14 @@ def _plot(result: dict, path):
     for ax, (fam, summ) in zip(axes, summary.items(), strict=False):
         ns = [int(n) for n in summ["refined"]]
         for a, c in colours.items():
-            for kind, style in (("refined", "-o"), ("scratch", "--s")):
+            for kind, style in (("refined", "-o"), ("groups", ":d"), ("scratch", "--s")):
                 pts = [(n, v[a]) for n, v in zip(ns, summ[kind].values(), strict=True) if v]
                 if pts:
                     ax.plot(*zip(*pts, strict=True), style, color=c, label=f"{a.upper()} presses ({kind})")
+            wrench = summ.get("wrench", {})
+            pts = [(int(n) / 41, v[a]) for n, v in wrench.items() if v]
+            if pts:  # force/torque frames, at their number per element
+                ax.plot(*zip(*pts, strict=True), "-.^", color=c, label=f"{a.upper()} F/T totals (frames / 41)")
             ax.axhline(summ["matched"][a], color=c, lw=1, ls=":", label=f"{a.upper()} matched floor")
             ax.scatter([ns[0] * 0.6], [summ["registered"][a]], marker="^", color=c)
             ax.scatter([ns[0] * 0.45], [summ["nominal"][a]], marker="x", color=c)
@@ -705,7 +709,7 @@ def _plot(result: dict, path):
         ax.set_xticks([ns[0] * 0.45, ns[0] * 0.6, *ns])
         ax.set_xticklabels(["nominal", "registered", *map(str, ns)], rotation=30)
         ax.minorticks_off()
-        ax.set_xlabel("presses per element (after registration)")
+        ax.set_xlabel("presses per element (after registration); F/T frames / 41")
         ax.set_ylabel("held-out RMSE (% of full scale)")
         ax.set_title(f"held-out {fam} loads, median of {n_force} stand-in(s)")
         ax.legend(fontsize=7, ncol=2)
