@@ -384,7 +384,7 @@ def fit_shapes(start: Calibration, obs: Observations, *, seed: int = 0, strength
 
     # one strength for all, then the normal curve's and the shear's in turn (coordinate search on the grid)
     best = min((np.full(NP, lam) for lam in grid), key=score)
-    for group in (NORMAL, ~NORMAL, NORMAL):
+    for group in (NORMAL, ~NORMAL):
         best = min((np.where(group, lam, best) for lam in grid), key=score)
     key = tuple(float(v) for v in best[[0, 2]])
     theta, _, normal, free_th = _solve(obs, np.arange(len(obs.value)), ring, theta0, best, n_par)
