@@ -325,7 +325,11 @@ def _folds(obs: Observations, seed) -> np.ndarray:
 
 
 def fit_shapes(start: Calibration, obs: Observations, *, seed: int = 0, strengths=None) -> ShapeFit:
-    """Each element's shape on top of ``start``, shrunk toward it, the strength cross-validated.
+    """Each element's shape on top of ``start``, shrunk toward it, the strengths cross-validated.
+
+    K-fold over the observations' units (:data:`FOLDS`, seeded): first one strength for every
+    parameter, from ``strengths``; then the normal curve's (:data:`NORMAL`) and the shear's in turn,
+    each the best of ``strengths`` with the other held.
 
     Parameters
     ----------
@@ -357,12 +361,13 @@ def fit_shapes(start: Calibration, obs: Observations, *, seed: int = 0, strength
     theta0 = np.zeros((n_el, NP))
     if start.shape is not None:
         theta0[:, :SHAPE_PARAMETERS] = start.shape
-    fold = _folds(obs, seed)[obs.unit]
+    unit_fold = _folds(obs, seed)
+    fold = unit_fold[obs.unit]
     n_fold = int(fold.max()) + 1
     cell_unit = np.zeros(len(obs.base), np.int64)  # each cell's unit (the first observation that reads it)
     coo = obs.mix.tocoo()
     cell_unit[coo.col // 3] = obs.unit[coo.row]
-    cell_fold = _folds(obs, seed)[cell_unit]
+    cell_fold = unit_fold[cell_unit]
     scores, preds = {}, {}
 
     def score(lam: np.ndarray) -> float:
