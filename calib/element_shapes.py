@@ -351,7 +351,13 @@ def fit_shapes(start: Calibration, obs: Observations, *, seed: int = 0, strength
     InputError
         Fewer than two cross-validation units.
     """
-    seed = integer(seed, "seed", minimum=0)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):  # hundreds of small dense solves: one BLAS thread is fastest
+        return _fit_shapes(start, obs, integer(seed, "seed", minimum=0), strengths)
+
+
+def _fit_shapes(start: Calibration, obs: Observations, seed: int, strengths) -> ShapeFit:
     grid = STRENGTHS if strengths is None else np.asarray(strengths, dtype=np.float64)
     if obs.n_units < 2:
         raise InputError(f"an element shape fit needs at least 2 presses or frames, got {obs.n_units}")
