@@ -10,6 +10,8 @@ Everything else is an extra::
     plot     matplotlib (every PNG figure)
     fast     numba (the compiled per-frame kernel; NumPy otherwise, same readings)
     columnar pyarrow, pandas (Parquet tables for long recordings)
+    record   mcap, mcap-ros2-support (MCAP recordings of live streams, and their replay)
+    live     rerun-sdk and the record extra (the live view in Rerun)
     all      everything above
 """
 
@@ -34,6 +36,9 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "matplotlib": ("plot", "matplotlib"),
     "numba": ("fast", "numba"),
     "pyarrow": ("columnar", "pyarrow"),
+    "mcap": ("record", "mcap"),
+    "mcap_ros2": ("record", "mcap-ros2-support"),
+    "rerun": ("live", "rerun-sdk"),
 }
 
 

@@ -1,4 +1,4 @@
-"""``optitact bench render|pipeline|accuracy|stability|realism``: one JSON object on stdout.
+"""``optitact bench render|pipeline|accuracy|stability|realism|process|live|drift``: one JSON object on stdout.
 
 The benchmarks themselves live in the studies layer (:mod:`optitact.studies`),
 imported when a bench runs.
@@ -194,8 +194,48 @@ def add_parsers(sub) -> None:
     bproc.add_argument("--repeats", type=positive_int, default=5,
                        help="timed runs of each command; medians are reported (default 5)")
 
+    blive = bsub.add_parser(
+        "live", parents=[seed_parent(), plot_parent("save the latencies and dropped frames per rate")],
+        help="live stream latency and dropped frames, with and without the viewer and the recorder",
+        description="Play a lossless video of analytic contact spots (the shipped calibration's 640x480 "
+                    "camera) at each frame rate, as a camera's driver hands frames over, through the loop of "
+                    "optitact process --camera (newest-frame policy, drift tracking, the rows written), "
+                    "alone, with the Rerun view (logged to an .rrd file), with the MCAP recorder (lossless "
+                    "frames) and with both, side by side in one run. Reports per rate and configuration "
+                    "the median and 99th-percentile latency from capture to forces and from capture to the "
+                    "viewer's SDK (ms), frames processed and dropped, CPU ms per frame and bytes per frame "
+                    "written; and the pipeline and forces alone on the same frames. Needs the live extra "
+                    "for the viewer and recorder rows. One JSON object on stdout.")
+    blive.add_argument("--rates", type=float, nargs="+", default=[30.0, 60.0, 120.0], metavar="FPS",
+                       help="frame rates to play the video at (default 30 60 120)")
+    blive.add_argument("--seconds", type=float, default=10.0,
+                       help="seconds per run (default 10)")
+    blive.add_argument("--configs", nargs="+", default=None,
+                       choices=("forces", "forces + viewer", "forces + recorder", "forces + viewer + recorder"),
+                       metavar="CONFIG",
+                       help="which of: 'forces', 'forces + viewer', 'forces + recorder', "
+                            "'forces + viewer + recorder' (default all)")
+
+    bdrift = bsub.add_parser(
+        "drift", parents=[seed_parent(), plot_parent("save the Fz error and contact flags over time")],
+        help="an hour of drift read with a fixed baseline and with drift tracking",
+        description="Simulate an hour of a sensor at work (frames of analytic spots consistent with a "
+                    "calibration, over the no-load light): the rim light drifting -3 %% over the hour, a "
+                    "black-level step of +2 DN at 20 minutes, the camera creeping 0.3 px, random contacts "
+                    "about a third of the time including a press held for 5 minutes, read noise and 8-bit "
+                    "frames. Reads it three ways on the same seed: without drift, with drift and a fixed "
+                    "baseline, with drift and drift tracking (optitact.pipeline.drift). Reports Fz, Fx, Fy "
+                    "RMSE (N and %% of 1 N), false and missed contacts, the error per time bin, the ratio "
+                    "tracked / no drift and what tracking prevents. One JSON object on stdout."
+                    .replace("%%", "%"))
+    bdrift.add_argument("--minutes", type=float, default=60.0, help="length of the run (default 60)")
+    bdrift.add_argument("--fps", type=float, default=1.0, help="frames per second (default 1)")
+    bdrift.add_argument("--size", default="320x240", metavar="WxH", help="frame size (default 320x240)")
+    bdrift.add_argument("--baseline-frames", type=positive_int, default=64,
+                        help="no-load frames averaged into the baseline (default 64)")
+
     for name, p in (("render", brender), ("pipeline", bpipe), ("accuracy", bacc), ("stability", bstab),
-                    ("realism", breal), ("process", bproc)):
+                    ("realism", breal), ("process", bproc), ("live", blive), ("drift", bdrift)):
         p.add_argument("--json", action="store_true",
                        help="print the result as one JSON object on stdout (what every bench prints; "
                             "the flag is accepted so that scripts can say so)")
@@ -270,6 +310,21 @@ def _realism(args) -> dict:
                          wrench_counts=tuple(args.wrench_frames))
 
 
+def _live(args) -> dict:
+    from optitact.studies.bench_live import bench_live
+
+    return bench_live(rates=tuple(args.rates), seconds=args.seconds, configs=args.configs, seed=args.seed,
+                      plot=args.plot)
+
+
+def _drift(args) -> dict:
+    from optitact.studies.bench_drift import drift_hour
+
+    width, height = size(args.size)
+    return drift_hour(minutes=args.minutes, fps=args.fps, width=width, height=height, seed=args.seed,
+                      progress=True, plot=args.plot, baseline_frames=args.baseline_frames)
+
+
 def _printing(bench):
     def run(args) -> int:
         if getattr(args, "plot", None) is not None:  # before minutes of work, not after
@@ -285,4 +340,5 @@ def _printing(bench):
 
 #: ``optitact bench NAME`` -> the command.
 BENCHES = {"render": _printing(_render), "pipeline": _printing(_pipeline), "accuracy": _printing(_accuracy),
-           "stability": _printing(_stability), "realism": _printing(_realism), "process": _printing(_process)}
+           "stability": _printing(_stability), "realism": _printing(_realism), "process": _printing(_process),
+           "live": _printing(_live), "drift": _printing(_drift)}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from contextlib import closing, nullcontext
 from dataclasses import replace
@@ -103,10 +104,13 @@ def add_parsers(sub) -> None:
     proc.add_argument("--batch", type=positive_int, default=32,
                       help="frames processed together (default 32)")
     live = proc.add_argument_group(
-        "live streams", "instead of FRAMES, read an OpenCV capture (cv2.VideoCapture) and write the rows "
-                        "as they come: to READINGS.partial.csv, flushed after every frame, renamed to "
-                        "READINGS.csv when the stream stops cleanly (its end, --max-frames, --seconds, "
-                        "Ctrl-C); colour frames are converted to grey (OpenCV's BGR2GRAY)")
+        "live streams and recordings", "instead of FRAMES, read an OpenCV capture (cv2.VideoCapture) and "
+                        "write the rows as they come: to READINGS.partial.csv, flushed after every frame, "
+                        "renamed to READINGS.csv when the stream stops cleanly (its end, --max-frames, "
+                        "--seconds, Ctrl-C); colour frames are converted to grey (OpenCV's BGR2GRAY). A "
+                        "recording made with --record (FRAMES = one RUN.mcap) is replayed the same way, frame "
+                        "by frame with its recorded capture times and its baseline, into READINGS.csv or "
+                        ".parquet")
     live.add_argument("--camera", default=None, metavar="INDEX|URL",
                       help="a camera's device index (0, 1, ...), a GStreamer pipeline, an RTSP/HTTP URL or a "
                            "video file")
@@ -114,10 +118,34 @@ def add_parsers(sub) -> None:
                       help="all: process every frame; newest: when processing falls behind, take the newest "
                            "frame and count the skipped ones as dropped (default: all for a video file, newest "
                            "for a device or URL)")
-    live.add_argument("--view", action="store_true",
-                      help="show each frame with the elements and the estimated shear drawn over it (needs a "
-                           "display and an OpenCV with a GUI: opencv-contrib-python in place of the headless "
-                           "build optitact installs; q or Esc stops)")
+    live.add_argument("--view", nargs="?", const="auto", default=None, metavar="native|web|VIEW.rrd",
+                      help="show the stream in Rerun (the live extra): the frame with the element regions "
+                           "and shear arrows, the dome in 3-D with a force arrow per element and its 90%% "
+                           "interval, "
+                           "the resultant and chosen elements over time, frames processed/dropped and latency. "
+                           "native: spawn Rerun's viewer (needs a display); web: serve Rerun's web viewer on "
+                           "localhost (its address is printed); VIEW.rrd: write the viewer's log to a file "
+                           "(open it with: rerun VIEW.rrd). Default: native with a display, else web. Also "
+                           "plays a recording (optitact process RUN.mcap --view)")
+    live.add_argument("--record", type=Path, default=None, metavar="RUN.mcap",
+                      help="also record the stream as MCAP (the record extra, part of live): each frame, the "
+                           "per-element "
+                           "readings, forces, standard errors and contact flags, the resultant as a ROS 2 "
+                           "geometry_msgs/msg/WrenchStamped and the stream's state, stamped with the capture "
+                           "time; ros2 bag, Foxglove and Rerun open it, and optitact process RUN.mcap "
+                           "re-processes its frames (e.g. with a better --calibration)")
+    live.add_argument("--frames", choices=("lossless", "lossy", "none"), default="lossless",
+                      dest="record_frames",
+                      help="with --record: store the frames losslessly (default: raw images in "
+                           "Zstandard-compressed chunks), as JPEG (lossy: about a tenth of the size, but "
+                           "re-processed forces differ) or not at all (forces only; cannot be re-processed)")
+    live.add_argument("--drift", choices=("track", "off"), default="track",
+                      help="track: follow slow drift of the rim light, the black level and a sub-pixel creep "
+                           "of the camera against the dome while elements are unloaded, never absorbing a "
+                           "press; both tables end with the tracked drift_gain, drift_offset, drift_shift_x, "
+                           "drift_shift_y and drift_flag (1, with a warning, where the change is beyond what "
+                           "tracking follows) (default). A longer baseline (--baseline-frames 60, unloaded) "
+                           "lets it follow the light finer. off: keep the first baseline")
     live.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
                       help="stop after N frames (baseline frames included)")
     live.add_argument("--seconds", type=float, default=None, metavar="S",
@@ -301,13 +329,19 @@ def run_process(args) -> int:
     _check_out(args.out, "--out")
     _check_out(args.plot, "--plot")
     _check_options(args)
-    if args.camera is not None:
+    from optitact.live.stream import is_recording_source
+
+    replay = any(is_recording_source(f) for f in args.frames or [])
+    if args.camera is not None or replay:
         if args.stderr or args.dn_per_electron is not None or args.noise is not None:
-            raise InputError("--stderr, --dn-per-electron and --noise work on recorded frames; a --camera "
-                             "stream writes forces without standard errors")
+            raise InputError("--stderr, --dn-per-electron and --noise work on frame files; a --camera stream "
+                             "or a replayed recording writes forces without standard errors (a --record "
+                             "recording holds the calibration's)")
         return _run_live(args)
-    if args.policy is not None or args.view or args.max_frames is not None or args.seconds is not None:
-        raise InputError("--policy, --view, --max-frames and --seconds are options of a --camera stream")
+    if (args.policy is not None or args.view is not None or args.max_frames is not None
+            or args.seconds is not None or args.record is not None):
+        raise InputError("--policy, --view, --record, --max-frames and --seconds are options of a --camera "
+                         "stream or a replayed recording (RUN.mcap)")
     if not args.frames:
         raise InputError("no frames given: pass image files, a folder, .npy stacks or a video, or "
                          "--camera INDEX|URL for a live stream")
@@ -367,80 +401,15 @@ def _process_files(args, files, first, frames) -> int:
 
 
 # ----------------------------------------------------------------------------- live streams
-#: The --view window's title.
-VIEW_WINDOW = "optitact process"
-
-
-def display_available() -> str | None:
-    """None when ``--view`` can open a window here, else why it cannot."""
+def view_target(given: str) -> str:
+    """The ``--view`` target: ``auto`` becomes ``native`` where a display is, else ``web``."""
     import os
-    import re
 
-    import cv2
-
-    gui = re.search(r"GUI:\s*(\S+)", cv2.getBuildInformation())
-    if gui is not None and gui.group(1).upper() == "NONE":
-        return headless_opencv_note()
+    if given != "auto":
+        return given
     if sys.platform.startswith("linux") and not any(os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY")):
-        return "no display (DISPLAY and WAYLAND_DISPLAY are not set)"
-    return None
-
-
-def headless_opencv_note() -> str:
-    """Why ``--view`` shows nothing with the headless OpenCV optitact installs; how to swap it for a GUI one."""
-    from importlib import metadata
-
-    dists = [d for d in metadata.packages_distributions().get("cv2", []) if "headless" in d.lower()]
-    dist = dists[0] if dists else "opencv-contrib-python-headless"
-    try:
-        pin = f"=={metadata.version(dist)}"
-    except metadata.PackageNotFoundError:
-        pin = ""
-    gui = dist.lower().replace("-headless", "")
-    return (f"this OpenCV ({dist}, which optitact installs) is built without a GUI; for --view, swap it for "
-            f"the build with one: pip uninstall -y {dist} && pip install {gui}{pin} (both install the same "
-            f"cv2: never keep the two, and if a later pip install brings {dist} back, uninstall both and "
-            f"install {gui} again)")
-
-
-class _View:
-    """``--view``: each frame with the element centres and estimated shear (the demo's overlay)."""
-
-    def __init__(self, sensor, camera) -> None:
-        self.sensor, self.camera = sensor, camera
-        self.on = True
-
-    def show(self, lf) -> bool:
-        """Show the frame; False when the user asks to stop (q or Esc)."""
-        import cv2
-
-        from optitact.cli.demo import overlay
-
-        if not self.on:
-            return True
-        forces = lf.forces.local if lf.forces is not None else np.zeros((self.sensor.n_elements, 3))
-        total = f", total normal {lf.forces.total_normal:.2f} N" if lf.forces is not None else ""
-        title = (f"{lf.source}: {int(lf.readings.contact.sum())} elements in contact{total}, "
-                 f"{lf.dropped} dropped")
-        try:
-            cv2.imshow(VIEW_WINDOW, overlay(lf.frame, self.sensor, self.camera, None, forces,
-                                            title=title))
-            key = cv2.waitKey(1) & 0xFF
-        except cv2.error as exc:
-            print(f"optitact: --view: cannot show the frames ({str(exc).strip().splitlines()[-1]}); going on "
-                  f"without the view", file=sys.stderr)
-            self.on = False
-            return True
-        return key not in (ord("q"), 27)
-
-    def close(self) -> None:
-        if self.on:
-            import cv2
-
-            try:
-                cv2.destroyWindow(VIEW_WINDOW)
-            except cv2.error:
-                pass
+        return "web"
+    return "native"
 
 
 class _CtrlC:
@@ -473,26 +442,58 @@ class _CtrlC:
 
 
 def _run_live(args) -> int:
-    """``optitact process --camera``: stream, write the rows as they come, print a summary."""
+    """``optitact process --camera`` (or ``RUN.mcap``): stream, write the rows as they come, print a summary."""
     import time
 
     from optitact.io.tables import partial_path, per_frame_path
     from optitact.live.stream import LiveWriter, frame_policy, source_label, stream
 
-    if args.frames:
-        raise InputError("give FRAMES or --camera, not both")
+    recording = None
+    if args.camera is None:  # a recording replayed
+        if len(args.frames) != 1:
+            raise InputError(f"a recording (RUN.mcap) is replayed alone: give one, without other frames; got "
+                             f"{len(args.frames)} inputs")
+        source = args.frames[0]
+        if args.policy is not None or args.seconds is not None:
+            raise InputError("--policy and --seconds are for a live --camera stream; a recording is replayed "
+                             "frame by frame (--max-frames stops early)")
+        from optitact.live.record import read_recording
+
+        recording = read_recording(source)
+        if recording.frames == "none":
+            raise InputError(f"{source}: the recording holds no frames (made with --frames none), so it cannot "
+                             f"be re-processed; its forces are in its /optitact/elements topic")
+    else:
+        if args.frames:
+            raise InputError("give FRAMES or --camera, not both")
+        source = args.camera
     if args.scheduler is not None:
         raise InputError("--scheduler processes files on a cluster; a --camera stream is processed here")
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be > 0, got {args.seconds:g}")
+    if args.record is not None:
+        _check_out(args.record, "--record")
+        if recording is not None and Path(args.record).resolve() == Path(source).resolve():
+            raise InputError(f"--record {args.record} is the recording being replayed; name another file")
+    from optitact._optional import require
+
+    if args.view is not None:
+        require("rerun", purpose="--view (the live view)")
+    if args.record is not None:
+        for module in ("mcap", "mcap_ros2.writer"):
+            require(module, purpose="--record (MCAP recordings)")
     setup = None if args.setup is None else read_setup(args.setup)
     given = _given(args)
     baseline = None if args.baseline is None else _load_baseline(args.baseline)
+    if baseline is None and recording is not None and recording.baseline is not None:
+        baseline = recording.baseline  # the baseline the stream was processed with
+        print("optitact: the recording's own baseline (given to the live stream with --baseline)",
+              file=sys.stderr)
     cal = _calibration(args, given, setup)
-    _check_not_inputs(args, [])
+    _check_not_inputs(args, [Path(source)] if recording is not None else [])
     if baseline is not None:
-        check_frame_size(args, cal, str(args.baseline), baseline.shape[1:])
-    built: list = []  # the pipeline in use (for the view)
+        check_frame_size(args, cal, str(args.baseline or source), baseline.shape[-2:])
+    built: list = []  # the pipeline in use (for the view and the recorder)
     if cal is not None or setup is not None:
         pipe = _pipeline(args, given, cal, setup, None)
         built.append(pipe)
@@ -501,31 +502,47 @@ def _run_live(args) -> int:
             built.append(_pipeline(args, given, None, None, shape))
             return built[-1]
     n_base, how = _baseline_note(args, baseline)
-    frames = stream(args.camera, calibration=cal, pipeline=pipe, baseline=baseline, baseline_frames=n_base,
-                    policy=args.policy, max_frames=args.max_frames, seconds=args.seconds)
-    which = ("every frame" if frame_policy(args.camera, args.policy) == "all"
-             else "the newest frame, dropping the others when behind")
-    label = source_label(args.camera)
-    print(f"optitact: reading {label} ({which}), {how}; rows go to {partial_path(args.out)} as they come, "
-          f"renamed to {args.out} at the end; Ctrl-C stops", file=sys.stderr)
-    view = None
-    if args.view:
-        why = display_available()
-        if why is not None:
-            print(f"optitact: --view: {why}; going on without the view", file=sys.stderr)
-    reason, last, n, n_b = "the stream ended", None, 0, 0
+    track = None
+    if args.drift == "track":
+        from optitact.pipeline.drift import DriftTracker
+
+        track = DriftTracker
+    frames = stream(source, calibration=cal, pipeline=pipe, baseline=baseline, baseline_frames=n_base,
+                    policy=args.policy, max_frames=args.max_frames, seconds=args.seconds, track=track)
+    label = source_label(source)
+    if recording is not None:
+        which = f"a recording of {recording.n_frames} frames ({recording.frames}), frame by frame"
+    else:
+        which = ("every frame" if frame_policy(source, args.policy) == "all"
+                 else "the newest frame, dropping the others when behind")
+    rows = (f"rows go to {partial_path(args.out)} as they come, renamed to {args.out} at the end"
+            if args.out.suffix.lower() != ".parquet" else f"rows go to {args.out} when the stream stops")
+    print(f"optitact: reading {label} ({which}), {how}, drift {'tracked' if track else 'not tracked'}; {rows}; "
+          f"Ctrl-C stops", file=sys.stderr)
+    reason, last, n, n_b, flagged = "the stream ended", None, 0, 0, False
+    view = recorder = None
     t0 = time.perf_counter()
-    with LiveWriter(args.out, calibration=cal) as out, _CtrlC() as ctrl_c:
+    with contextlib.ExitStack() as stack:
+        out = stack.enter_context(LiveWriter(args.out, calibration=cal, drift=track is not None))
+        ctrl_c = stack.enter_context(_CtrlC())
+        opened = bool(built)  # the pipeline is known: the viewer and recorder start before the first frame
+        if opened:
+            view, recorder = _outputs(args, stack, built[-1], cal, label, baseline)
         try:
             for lf in frames:
+                if not opened:  # a camera model of the first frame's size: known now
+                    view, recorder = _outputs(args, stack, built[-1], cal, label, baseline)
+                    opened = True
                 out.write(lf)
+                if recorder is not None:
+                    recorder.write(lf, ready=lf.wall_time + lf.latency, latency=lf.latency, drift=lf.drift)
+                if view is not None:
+                    view.log(lf, latency_s=lf.latency)
                 last, n, n_b = lf, n + 1, n_b + lf.baseline
-                if args.view and why is None:
-                    if view is None:
-                        view = _View(built[-1].sensor, built[-1].camera)
-                    if not view.show(lf):
-                        reason = "stopped from the view (q/Esc)"
-                        break
+                if lf.drift is not None and lf.drift.flag and not flagged:
+                    print(f"optitact: warning: drift beyond what tracking follows at {lf.source} "
+                          f"({lf.drift.reason}); take a new baseline with the sensor unloaded", file=sys.stderr)
+                flagged = bool(lf.drift is not None and lf.drift.flag)
                 if ctrl_c.requested:
                     reason = "stopped by Ctrl-C"
                     break
@@ -533,8 +550,6 @@ def _run_live(args) -> int:
             reason = "stopped by Ctrl-C"
         finally:
             frames.close()
-            if view is not None:
-                view.close()
         seconds = time.perf_counter() - t0
         if n == 0 and reason == "the stream ended":
             raise InputError(f"{label}: the stream gave no frame")
@@ -551,4 +566,33 @@ def _run_live(args) -> int:
     print(f"optitact: {reason}: {n} frames processed ({n_b} of them baseline), {dropped} dropped, "
           f"{n / max(seconds, 1e-9):.1f} frames/s; wrote {'forces' if cal else 'readings'} of {n} frames to "
           f"{args.out}{also}", file=sys.stderr)
+    if recorder is not None:
+        print(f"optitact: recorded {n} frames ({args.record_frames} frames) to {args.record}"
+              + (f"; the stream waited {recorder.waited:.1f} s for the disk" if recorder.waited > 0.05 else ""),
+              file=sys.stderr)
+    if view is not None and getattr(view, "path", None) is not None:
+        print(f"optitact: wrote the view to {view.path} (open it with: rerun {view.path})", file=sys.stderr)
     return 0
+
+
+def _outputs(args, stack, pipe, cal, label: str, baseline):
+    """The ``--view`` and ``--record`` of a stream, opened at its first frame and closed with ``stack``."""
+    view = recorder = None
+    if args.record is not None:
+        from optitact.live.record import Recorder
+
+        if args.record_frames == "lossy":
+            print("optitact: --frames lossy: JPEG changes G and the centroids, so forces re-processed from "
+                  "this recording will differ from these (--frames lossless keeps them)", file=sys.stderr)
+        recorder = stack.enter_context(Recorder(args.record, frames=args.record_frames, source=label,
+                                                calibration=cal, sensor=pipe.sensor, camera=pipe.camera,
+                                                options=pipe.options(), baseline=baseline))
+    if args.view is not None:
+        from optitact.live.viewer import open_view
+
+        target = view_target(args.view)
+        view = stack.enter_context(open_view(target, sensor=pipe.sensor, camera=pipe.camera, calibration=cal,
+                                             name="optitact"))
+        if getattr(view, "url", None):
+            print(f"optitact: --view: the web viewer is at {view.url}", file=sys.stderr)
+    return view, recorder

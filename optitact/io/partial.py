@@ -269,7 +269,7 @@ class PartialCSV:
 #: Arrow types of the columns of the Parquet tables (the rest are float64).
 _PARQUET_TYPES = {"frame": "int64", "source": "string", "element": "int64", "contact": "bool_",
                   "saturated": "bool_", "clamped": "bool_", "n_contact": "int64", "n_clamped": "int64",
-                  "wall_time": "string"}
+                  "wall_time": "string", "drift_flag": "bool_"}
 
 
 class PartialParquet:

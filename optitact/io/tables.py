@@ -639,11 +639,18 @@ class ReadingsWriter:
     #: The columns that end both tables with ``times=True``.
     TIME_COLUMNS = ("time_s", "wall_time")
 
+    #: The columns after those with ``drift=True``: the drift tracker's state at the frame
+    #: (:class:`optitact.pipeline.drift.DriftState`: light gain, black-level offset in grey levels,
+    #: camera shift in pixels, and whether the change exceeds what tracking follows, 0/1).
+    DRIFT_COLUMNS = ("drift_gain", "drift_offset", "drift_shift_x", "drift_shift_y", "drift_flag")
+
     def __init__(self, path: str | os.PathLike, *, forces: bool = False, sensor=None,
-                 visible: bool = False, stderr: bool = False, times: bool = False) -> None:
+                 visible: bool = False, stderr: bool = False, times: bool = False, drift: bool = False) -> None:
         self.path = Path(path)
         #: The tables end with :data:`TIME_COLUMNS`.
         self.with_times = bool(times)
+        #: The tables end with :data:`DRIFT_COLUMNS` (after the time columns).
+        self.with_drift = bool(drift)
         self.with_forces = forces
         if stderr and not forces:
             raise InputError("stderr=True needs forces=True: the standard errors are of the forces")
@@ -662,7 +669,8 @@ class ReadingsWriter:
             raise InputError(f"{self.path}: a Parquet table is readable only once complete; write a live "
                              f"stream as CSV")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        times_cols = self.TIME_COLUMNS if self.with_times else ()
+        times_cols = ((self.TIME_COLUMNS if self.with_times else ())
+                      + (self.DRIFT_COLUMNS if self.with_drift else ()))
 
         def partial(target: Path, header: Sequence[str]):
             if self.format == "parquet":
@@ -696,12 +704,15 @@ class ReadingsWriter:
         return [f.path for f in self._files]
 
     def write(self, readings, sources: Sequence[str], forces=None, clamped=None, stderr=None, *,
-              time_s: Sequence[float] | None = None, wall_time: Sequence[float] | None = None) -> None:
+              time_s: Sequence[float] | None = None, wall_time: Sequence[float] | None = None,
+              drift: Sequence | None = None) -> None:
         """Write readings of ``len(sources)`` frames (a stack, or one frame), with forces if kept.
 
         ``stderr`` (``(T, E, 3)`` or ``(E, 3)`` N) is needed by a writer made with ``stderr=True``;
         ``time_s`` (seconds from the start of the stream) and ``wall_time`` (seconds since the epoch,
-        written as ISO 8601 in UTC), one of each per frame, by a writer made with ``times=True``.
+        written as ISO 8601 in UTC), one of each per frame, by a writer made with ``times=True``;
+        ``drift``, one ``(gain, offset, shift_x, shift_y, flag)`` per frame, by one made with
+        ``drift=True``.
         The frames' rows go to each CSV table in one write: if it fails, none of them is written.
         """
         r = readings.as_stack()
@@ -716,6 +727,11 @@ class ReadingsWriter:
             if times[0].size != n or times[1].size != n:
                 raise ShapeError(f"time_s and wall_time need one value per frame ({n}), got "
                                  f"{times[0].size} and {times[1].size}")
+        states = None
+        if self.with_drift:
+            if drift is None or len(drift) != n:
+                raise ValueError(f"this writer has drift columns: pass drift, one state per frame ({n})")
+            states = [(float(g), float(o), float(x), float(y), bool(f)) for g, o, x, y, f in drift]
         cols = {"G": r.G, "ux": r.u[..., 0], "uy": r.u[..., 1], "contact": r.contact, "saturated": r.saturated}
         per_frame = None
         if self.with_forces:
@@ -744,21 +760,31 @@ class ReadingsWriter:
                          **{f"centre_of_pressure_{a}": cop[:, i] for i, a in enumerate("xyz")}}
         frame_ids = np.arange(self.frames, self.frames + n)
         if self.format == "parquet":
+            extra: dict = {}
             if times is not None:
                 walls = [_iso_utc(w) for w in times[1].tolist()]
                 cols |= {"time_s": np.repeat(times[0], n_el), "wall_time": (walls, n_el)}
+                extra |= {"time_s": times[0], "wall_time": (walls, 1)}
+            if states is not None:
+                arr = np.array([st[:4] for st in states], np.float64).reshape(n, 4)
+                flags = np.array([st[4] for st in states], bool)
+                for i, k in enumerate(self.DRIFT_COLUMNS[:4]):
+                    cols[k], extra[k] = np.repeat(arr[:, i], n_el), arr[:, i]
+                cols["drift_flag"], extra["drift_flag"] = np.repeat(flags, n_el), flags
             names = self._files[0].schema.names
             table = {"frame": np.repeat(frame_ids, n_el), "element": np.tile(np.arange(n_el), n),
                      "source": (sources, n_el)}
             self._files[0].write(table | {k: cols[k] for k in names[3:]})
             if per_frame is not None:
-                extra = {} if times is None else {"time_s": times[0], "wall_time": (walls, 1)}
                 self._files[1].write({"frame": frame_ids, "source": (sources, 1)} | per_frame | extra)
             self.frames += n
             return
         heads = [f"{self.frames + k},{_csv_cell(src)}," for k, src in enumerate(sources)]
         tails = None if times is None else [f",{t!r},{_iso_utc(w)}"
                                             for t, w in zip(times[0].tolist(), times[1].tolist(), strict=True)]
+        if states is not None:
+            more = [f",{g!r},{o!r},{x!r},{y!r},{int(f)}" for g, o, x, y, f in states]
+            tails = more if tails is None else [a + b for a, b in zip(tails, more, strict=True)]
         names = self.COLUMNS[3:] + (self.FORCE_COLUMNS if self.with_forces else ()) \
             + (self.SE_COLUMNS if self.with_stderr else ())
         columns = [list(range(n_el)) * n]

@@ -54,7 +54,8 @@ from optitact.io.tables import ReadingsWriter
 from optitact.pipeline.frame_pipeline import Pipeline
 from optitact.pipeline.readings import Readings
 
-__all__ = ["POLICIES", "LiveFrame", "LiveWriter", "frame_policy", "open_capture", "source_label", "stream"]
+__all__ = ["POLICIES", "LiveFrame", "LiveWriter", "frame_policy", "is_recording_source", "open_capture",
+           "source_label", "stream", "warm_up"]
 
 #: How :func:`stream` takes frames from a capture: every one in order, or the newest (dropping the rest).
 POLICIES = ("all", "newest")
@@ -93,7 +94,17 @@ class LiveFrame:
     wall_time : float
         The same moment on the wall clock: seconds since the epoch
         (``time.time()`` at the start of the stream plus ``timestamp``, so
-        it never steps back with the clock); NaN when not known.
+        it never steps back with the clock); NaN when not known. A replayed
+        recording gives each frame its recorded capture time.
+    image : ndarray or None
+        The image as the capture delivered it (colour, if it was), before
+        the conversion to grey: what a recording stores.
+    latency : float
+        Seconds from the capture to the forces (readings) being ready; NaN
+        for a replayed recording, whose capture times are the recorded ones.
+    drift : DriftState or None
+        With drift tracking, the tracker's state at this frame
+        (:class:`optitact.pipeline.drift.DriftState`).
     """
 
     index: int
@@ -105,6 +116,14 @@ class LiveFrame:
     dropped: int
     baseline: bool = False
     wall_time: float = float("nan")
+    image: np.ndarray | None = None
+    latency: float = float("nan")
+    drift: object | None = None
+
+
+def is_recording_source(source) -> bool:
+    """Whether ``source`` names an MCAP recording (a path ending in ``.mcap``), replayed frame by frame."""
+    return isinstance(source, (str, os.PathLike)) and os.fspath(source).lower().endswith(".mcap")
 
 
 def _device_index(source) -> int | None:
@@ -272,7 +291,7 @@ def _check_size(image: np.ndarray, pipe: Pipeline, calibration, label: str) -> N
 
 def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = None, baseline=None,
            baseline_frames: int = 1, policy: str | None = None, max_frames: int | None = None,
-           seconds: float | None = None) -> Iterator[LiveFrame]:
+           seconds: float | None = None, track: Callable | None = None) -> Iterator[LiveFrame]:
     """Yield readings (and forces) of a live source's frames as they arrive.
 
     Parameters
@@ -308,6 +327,12 @@ def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = N
         Stop after yielding this many frames (baseline frames included).
     seconds : float, optional
         Stop after this many seconds.
+    track : callable, optional
+        Drift tracking: called once with the pipeline when its baseline is
+        in place, it returns a tracker whose ``process(frame, t)`` (``t``:
+        the capture time, s) gives ``(readings, state)`` (e.g. ``lambda p:
+        optitact.pipeline.drift.DriftTracker(p)``); every later frame goes
+        through it and :attr:`LiveFrame.drift` holds its state.
 
     Yields
     ------
@@ -333,7 +358,10 @@ def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = N
     collection) or when an error, ``KeyboardInterrupt`` included, leaves it.
     A capture object passed in is released too.
     """
-    policy = frame_policy(source, policy)
+    if is_recording_source(source):
+        policy = frame_policy(source, policy or "all")
+    else:
+        policy = frame_policy(source, policy)
     n_base = integer(baseline_frames, "baseline_frames", minimum=0)
     if max_frames is not None:
         max_frames = integer(max_frames, "max_frames", minimum=1)
@@ -349,7 +377,15 @@ def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = N
     elif pipeline is not None and not callable(pipeline):
         raise TypeError(f"pipeline must be a Pipeline or a callable, got {type(pipeline).__name__}")
     size = pipeline.camera.shape if isinstance(pipeline, Pipeline) else None
-    return _frames(source, calibration, pipeline, baseline, n_base, policy, max_frames, seconds, size)
+    if track is not None and not callable(track):
+        raise TypeError(f"track must be a callable (pipeline -> tracker), got {type(track).__name__}")
+    label = source_label(source)
+    if is_recording_source(source):
+        from optitact.live.record import RecordingCapture
+
+        source = RecordingCapture(source)
+    return _frames(source, label, calibration, pipeline, baseline, n_base, policy, max_frames, seconds, size,
+                   track)
 
 
 def frame_policy(source, policy: str | None) -> str:
@@ -374,23 +410,46 @@ def _default_pipeline(shape: tuple[int, int]) -> Pipeline:
     return Pipeline(DomeSensor.default(), FisheyeCamera(width=shape[1], height=shape[0]))
 
 
-def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, seconds, size):
+def _frames(source, label, cal, pipe, baseline, n_base: int, policy: str, max_frames, seconds, size, track):
     """The generator behind :func:`stream` (its arguments checked)."""
-    label = source_label(source)
+    if isinstance(pipe, Pipeline):
+        warm_up(pipe, cal)
     cap = source if _is_capture(source) else open_capture(source, size=size)
     t0, wall0 = time.perf_counter(), time.time()
     reader = _Newest(cap, t0) if policy == "newest" else None
+    stamped = reader is None and hasattr(cap, "read_stamped")  # a recording: its own indices and times
     count = 0
 
     def take():
         nonlocal count
         if reader is not None:
-            return reader.take()
+            item = reader.take()
+            return None if item is None else (*item, None)
+        if stamped:
+            ok, img, index, t, wall = cap.read_stamped()
+            return (index, t, img, wall) if ok else None
         ok, img = cap.read()
         if not ok:
             return None
         count += 1
-        return count - 1, time.perf_counter() - t0, img
+        return count - 1, time.perf_counter() - t0, img, None
+
+    tracker = None
+
+    def live(pipe, index, t, wall, img, frame, dropped, is_baseline):
+        nonlocal tracker
+        if track is not None and tracker is None and pipe.baseline is not None:
+            tracker = track(pipe)
+        if tracker is not None:
+            readings, state = tracker.process(frame, t)
+        else:
+            readings, state = pipe.process(frame), None
+        forces = cal.apply(readings) if cal is not None else None
+        latency = time.perf_counter() - t0 - t if wall is None else float("nan")
+        return LiveFrame(index=index, timestamp=t, source=f"{label}#{index}", frame=frame, readings=readings,
+                         forces=forces, dropped=dropped, baseline=is_baseline,
+                         wall_time=wall0 + t if wall is None else wall, image=img, latency=latency,
+                         drift=state)
 
     try:
         head: list = []
@@ -405,7 +464,7 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
                                      f"{n_base} baseline frame(s) (--baseline-frames) were read; pass a "
                                      f"no-load frame as the baseline (--baseline) or fewer baseline frames")
                 break
-            index, t, img = item
+            index, t, img, wall = item
             frame = to_grey(img, f"{label}#{index}")
             if not isinstance(pipe, Pipeline):
                 pipe = (pipe or _default_pipeline)(frame.shape)
@@ -416,17 +475,17 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
             _check_size(frame, pipe, cal, f"{label}#{index}")
             dropped = reader.dropped if reader is not None else 0
             if len(head) < n_base:  # a baseline frame: processed once the baseline is complete
-                head.append((index, t, frame, dropped))
+                head.append((index, t, wall, img, frame, dropped))
                 if len(head) < n_base:
                     continue
-                pipe = pipe.with_baseline(np.stack([h[2] for h in head]))
-                for index, t, frame, dropped in head:
-                    yield _live_frame(pipe, cal, label, index, t, frame, dropped, True, wall0)
+                pipe = pipe.with_baseline(np.stack([h[4] for h in head]))
+                for index, t, wall, img, frame, dropped in head:
+                    yield live(pipe, index, t, wall, img, frame, dropped, True)
                     done += 1
                     if max_frames is not None and done >= max_frames:
                         return
                 continue
-            yield _live_frame(pipe, cal, label, index, t, frame, dropped, False, wall0)
+            yield live(pipe, index, t, wall, img, frame, dropped, False)
             done += 1
     finally:
         if reader is not None:
@@ -435,12 +494,20 @@ def _frames(source, cal, pipe, baseline, n_base: int, policy: str, max_frames, s
             cap.release()
 
 
-def _live_frame(pipe: Pipeline, cal, label: str, index: int, t: float, frame: np.ndarray, dropped: int,
-                is_baseline: bool, wall0: float) -> LiveFrame:
-    readings = pipe.process(frame)
-    forces = cal.apply(readings) if cal is not None else None
-    return LiveFrame(index=index, timestamp=t, source=f"{label}#{index}", frame=frame, readings=readings,
-                     forces=forces, dropped=dropped, baseline=is_baseline, wall_time=wall0 + t)
+def warm_up(pipe: Pipeline, calibration=None) -> None:
+    """Load what the first frame would: the compiled kernel and the calibration's curves, on a dark frame.
+
+    A stream calls this before it opens the capture, so that the first
+    frames are not dropped while the kernel loads from its cache (most of a
+    second). Frames of a dtype the pipeline refuses are skipped silently.
+    """
+    dtype = pipe.baseline_dtype or (np.uint16 if (pipe.bits or pipe.readings_bits or 8) > 8 else np.uint8)
+    try:
+        readings = pipe.process(np.zeros(pipe.camera.shape, dtype))
+    except (InputError, TypeError, ValueError):
+        return
+    if calibration is not None:
+        calibration.apply(readings)
 
 
 class LiveWriter:
@@ -465,18 +532,28 @@ class LiveWriter:
     the disk fills; a second writer of the same ``NAME`` is refused while
     this one is open (see :class:`~optitact.io.tables.ReadingsWriter`).
 
+    A ``path`` ending in ``.parquet`` (a replayed recording, or a long run
+    read only when it ends) writes Parquet instead: readable once the
+    stream stops, since Parquet's footer comes last (rows go to a hidden
+    temporary file until then, see :class:`~optitact.io.tables.ReadingsWriter`).
+
     Parameters
     ----------
     path : path-like
-        The CSV file.
+        The CSV (or Parquet) file.
     calibration : Calibration, optional
         Write the force columns and the per-frame table.
+    drift : bool
+        The stream tracks drift: both tables end with the tracker's state
+        (:data:`~optitact.io.tables.ReadingsWriter.DRIFT_COLUMNS`; a frame before tracking
+        starts, a baseline frame, reads gain 1, offset and shift 0, no flag).
     """
 
-    def __init__(self, path: str | os.PathLike, *, calibration=None) -> None:
+    def __init__(self, path: str | os.PathLike, *, calibration=None, drift: bool = False) -> None:
         self.with_forces = calibration is not None
-        self._writer = ReadingsWriter(path, forces=self.with_forces, visible=True, times=True,
-                                      sensor=calibration.sensor if self.with_forces else None)
+        parquet = Path(path).suffix.lower() == ".parquet"
+        self._writer = ReadingsWriter(path, forces=self.with_forces, visible=not parquet, times=True,
+                                      drift=drift, sensor=calibration.sensor if self.with_forces else None)
         self.path = self._writer.path
 
     @property
@@ -491,15 +568,21 @@ class LiveWriter:
 
     def write(self, frame: LiveFrame) -> None:
         """Write one frame's rows and flush them to disk."""
+        drift = None
+        if self._writer.with_drift:
+            d = frame.drift
+            drift = [(1.0, 0.0, 0.0, 0.0, False) if d is None
+                     else (d.gain, d.offset, d.shift_x, d.shift_y, d.flag)]
         if self.with_forces:
             if frame.forces is None:
                 raise ValueError("this writer has force columns: the frame has no forces (no calibration)")
             self._writer.write(frame.readings, [frame.source], frame.forces.local, frame.forces.clamped,
-                               time_s=[frame.timestamp], wall_time=[frame.wall_time])
+                               time_s=[frame.timestamp], wall_time=[frame.wall_time], drift=drift)
         else:
             self._writer.write(frame.readings, [frame.source], time_s=[frame.timestamp],
-                               wall_time=[frame.wall_time])
-        self._writer.flush()
+                               wall_time=[frame.wall_time], drift=drift)
+        if self._writer.format == "csv":  # Parquet gathers rows into row groups (it flushes them itself)
+            self._writer.flush()
 
     def close(self) -> None:
         """A clean stop: rename the rows to their final names."""

@@ -47,7 +47,7 @@ from optitact.pipeline.baseline import baseline_noise, impulse_floor, take_basel
 from optitact._validate import integer, positive
 from optitact.optics.camera import Camera
 from optitact.optics.ccd import check_bit_depth, dn_ratio
-from optitact.errors import InputError
+from optitact.errors import InputError, ShapeError
 from optitact.pipeline.readings import Readings
 from optitact.pipeline.regions import (deferred_grids, dewarp, fold_regions, integrate)
 from optitact.optics.sensor import DomeSensor
@@ -475,9 +475,59 @@ class Pipeline:
             out.grids = self.grids  # the same geometry: built at most once
         return out
 
+    @property
+    def baseline_frames(self) -> int:
+        """Frames averaged into the baseline's mean (0 without one): its noise is a frame's over their root."""
+        return self._baseline_frames
+
     def with_baseline(self, frames) -> Pipeline:
         """The same pipeline with ``frames`` (a frame or the mean of a stack) as no-load baseline."""
         return self.replace(baseline=frames)
+
+    def with_baseline_mean(self, mean) -> Pipeline:
+        """The same pipeline subtracting another no-load mean; its noise map, thresholds and floor kept.
+
+        For a baseline that drifts slowly (the rim light, the black level, a
+        sub-pixel camera creep; :class:`optitact.pipeline.drift.DriftTracker`):
+        only the mean that is subtracted changes, so the swap costs one small
+        copy (no noise statistics made again) and frames keep the original
+        baseline's dtype check. :meth:`replace` and :meth:`with_baseline`
+        start again from the baseline as first given.
+
+        Parameters
+        ----------
+        mean : (H, W) array_like
+            The no-load mean in the frames' grey levels, finite.
+
+        Returns
+        -------
+        Pipeline
+
+        Raises
+        ------
+        InputError
+            This pipeline has no baseline, or ``mean`` is not finite.
+        ShapeError
+            ``mean`` is not of the camera's ``(H, W)``.
+        """
+        if self.baseline is None:
+            raise InputError("this pipeline has no baseline whose mean could be replaced; give one "
+                             "(with_baseline) first")
+        b = np.array(mean, dtype=np.float64)
+        if b.shape != self.camera.shape:
+            raise ShapeError(f"mean must have the camera's shape {self.camera.shape}, got {b.shape}")
+        if not np.isfinite(b).all():
+            raise InputError("mean must be finite")
+        b.flags.writeable = False
+        out = copy.copy(self)
+        out.baseline = b
+        out.entry_baseline = b.reshape(-1)[self.region_weights.pixel]
+        out.fast_path = FastPath(self.region_weights, n_elements=self.grids.n_elements,
+                                 frame_shape=self.camera.shape, entry_baseline=out.entry_baseline,
+                                 entry_threshold=self.entry_threshold, floor=self.floor,
+                                 saturation=self._frame_saturation, tail=self.tail, filter=self.filter,
+                                 filter_size=self.filter_size, baseline=b)
+        return out
 
     @classmethod
     def from_noload(cls, sensor: DomeSensor, camera: Camera, frames, **options) -> Pipeline:

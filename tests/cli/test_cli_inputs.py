@@ -190,15 +190,20 @@ def test_plot_without_matplotlib_is_refused_before_any_frame_is_processed(user, 
     assert sorted(p.name for p in user.folder.iterdir()) == ["cal.json", "rec.npy"]
 
 
-def test_view_with_the_headless_opencv_says_what_to_install(user):
-    """The installed OpenCV has no GUI: --view says which package to swap for which, then goes on."""
-    if "NONE" not in cv2.getBuildInformation().split("GUI:")[1].split()[0].upper():
-        pytest.skip("this OpenCV has a GUI")
+@pytest.mark.parametrize("module, extra, option", [("rerun", "live", "--view"), ("mcap", "record", "--record")])
+def test_view_and_record_without_their_extra_are_refused_before_any_frame(user, tmp_path, module, extra,
+                                                                         option):
+    """The live view needs rerun-sdk, a recording mcap: one line naming the extra, no table written."""
+    fake = tmp_path / f"no-{module}" / module
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text(f'raise ModuleNotFoundError("No module named \'{module}\'", '
+                                      f'name="{module}")\n')
     _video(user.path("clip.avi"), 3, CAM.shape)
-    r = user.run("process", "--camera", "clip.avi", "--view", "--out", "r.csv")
-    assert r.returncode == 0, r.stderr
-    assert "pip uninstall -y opencv-contrib-python-headless && pip install opencv-contrib-python==" in r.stderr
-    assert "going on without the view" in r.stderr and user.path("r.csv").is_file()
+    value = "v.rrd" if option == "--view" else "run.mcap"
+    r = user.run("process", "--camera", "clip.avi", option, value, "--out", "r.csv",
+                 env={"PYTHONPATH": str(fake.parent)})
+    _refused(r, f"pip install 'optitact[{extra}]'")
+    assert sorted(p.name for p in user.folder.iterdir()) == ["clip.avi"]
 
 
 # ----------------------------------------------------------------------------- render and demo

@@ -58,7 +58,10 @@ PAGES = {page.name: page for page in (
         "--out mysensor.json": "run outside in on rendered object presses by "
                                "tests/calib/test_element_shapes.py::test_cli_wrench_calibration_outside_in"}),
     Page(DOCS / "guides/live.md", quick=SMALL, needs=("mitsuba",), min_python=1,
-         run=frozenset({"optitact process --camera clip.avi --out live.csv"})),
+         run=frozenset({"optitact process --camera clip.avi --out live.csv",
+                        "optitact process --camera clip.avi --calibration cal.json --record run.mcap --view "
+                        "view.rrd --out live.csv",
+                        "optitact process run.mcap --calibration cal.json --out replay.parquet"})),
     Page(DOCS / "guides/taxels.md", needs=("matplotlib", "sklearn", "dtaidistance"), min_python=2,
          run=frozenset({"optitact experiment tracing"}),
          skipped={"optitact experiment finger --full --plot finger.png": "the full finger study (minutes)"}),
@@ -157,6 +160,14 @@ def test_live_guide_runs(tmp_path, monkeypatch):
     assert len(rows) == 4 * 41 and {"time_s", "wall_time"} <= set(rows[0])
     apex = [row for row in rows if row["element"] == "0"]
     assert [row["contact"] for row in apex][1:] == [apex[1]["contact"]] * 3
+    # recorded, viewed into a file and replayed: the replay's forces are the live ones, to the last digit
+    import pandas as pd
+
+    replay = pd.read_parquet(tmp_path / "replay.parquet")
+    live_forces = np.array([[float(row[k]) for k in ("fx", "fy", "fz")] for row in rows])
+    np.testing.assert_array_equal(replay[["fx", "fy", "fz"]].to_numpy(), live_forces)
+    assert live_forces[41:, 2].max() > 0.3  # the apex press reads as force
+    assert (tmp_path / "view.rrd").stat().st_size > 0 and (tmp_path / "run.mcap").stat().st_size > 0
 
 
 def test_taxels_guide_runs(tmp_path, monkeypatch):

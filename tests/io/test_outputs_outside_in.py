@@ -158,7 +158,8 @@ def test_a_full_disk_mid_stream_keeps_whole_frames_of_a_live_table(user):
     line = _error_line(r)
     assert line.startswith("optitact: error: writing live.partial.csv: File too large"), line
     rows = _ends_on_a_whole_frame(user.path("live.partial.csv"))
-    assert rows[0][-2:] == ["time_s", "wall_time"] and 1 <= (len(rows) - 1) // N_EL < 30
+    assert rows[0][-7:-5] == ["time_s", "wall_time"] and rows[0][-1] == "drift_flag"
+    assert 1 <= (len(rows) - 1) // N_EL < 30
     assert not user.path("live.csv").exists()
 
 
@@ -181,7 +182,8 @@ def test_live_rows_carry_the_capture_time(user):
     r = user.run("process", "--camera", "clip.avi", "--out", "live.csv", cached=True)
     assert r.returncode == 0, r.stderr
     table = pd.read_csv(user.path("live.csv"))
-    assert list(table.columns[-2:]) == ["time_s", "wall_time"] and len(table) == 6 * N_EL
+    assert list(table.columns[-7:]) == ["time_s", "wall_time", "drift_gain", "drift_offset", "drift_shift_x",
+                                        "drift_shift_y", "drift_flag"] and len(table) == 6 * N_EL
     per_frame = table.groupby("frame")
     assert (per_frame["time_s"].nunique() == 1).all() and (per_frame["wall_time"].nunique() == 1).all()
     t = per_frame["time_s"].first().to_numpy()

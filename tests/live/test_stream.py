@@ -17,6 +17,7 @@ from test_process import CAM, SENSOR, SPOTS, read_csv, spot_frame
 import optitact
 import optitact.live.stream as live
 from optitact.cli import main
+from optitact.io.tables import ReadingsWriter
 from optitact.live.stream import LiveWriter, source_label, stream
 
 WAIT = 30.0  # seconds a test waits for an event before failing (never reached when the code is right)
@@ -85,7 +86,8 @@ def test_camera_file_gives_the_same_forces_as_process(tmp_path, frames, cal, vid
     assert sorted(p.name for p in tmp_path.iterdir()) == ["camera.csv", "camera.per_frame.csv", "process.csv",
                                                          "process.per_frame.csv"]
     got, want = read_csv(b), read_csv(a)
-    assert list(got[0]) == [*want[0], "time_s", "wall_time"] and len(got) == len(want) == 5 * 41
+    assert list(got[0]) == [*want[0], "time_s", "wall_time", *ReadingsWriter.DRIFT_COLUMNS]
+    assert len(got) == len(want) == 5 * 41
     assert [r["source"] for r in got] == [r["source"] for r in want]  # clip.avi#k in both
     names = ("G", "ux", "uy", "fx", "fy", "fz", "fx_global", "fy_global", "fz_global")
     np.testing.assert_allclose(columns(got, names, 5), columns(want, names, 5), rtol=1e-9, atol=1e-12)
@@ -206,32 +208,17 @@ def test_rows_are_on_disk_as_they_come_and_an_error_keeps_them(tmp_path, frames,
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.partial.csv"]
 
 
-@pytest.mark.parametrize("display", ["no display (test)", None])
-def test_view_without_a_display_says_so_once_and_goes_on(tmp_path, frames, cal, monkeypatch, capsys, display):
-    """No display: said once up front. A display but a headless OpenCV: imshow fails, said once."""
-    import optitact.cli.process as proc
+@pytest.mark.parametrize("env, target", [({}, "web"), ({"DISPLAY": ":0"}, "native"),
+                                         ({"WAYLAND_DISPLAY": "wayland-0"}, "native")])
+def test_view_without_a_target_is_native_with_a_display_else_web(monkeypatch, env, target):
+    from optitact.cli.process import view_target
 
-    _, cal_path = cal
-    monkeypatch.setattr(proc, "display_available", lambda: display)
-    shown = []
-
-    def imshow(name, picture):  # as a headless OpenCV's: no window
-        shown.append(picture.shape)
-        raise cv2.error("no GUI here")
-
-    monkeypatch.setattr(cv2, "imshow", imshow)
-    fake_camera(monkeypatch, FakeCapture(frames))
-    out = tmp_path / "f.csv"
-    assert main(["process", "--camera", "0", "--policy", "all", "--view", "--calibration", str(cal_path),
-                 "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert err.count("--view:") == 1
-    if display is not None:
-        assert "--view: no display (test); going on without the view" in err and not shown
-    else:  # the overlay was drawn for the first frame (enlarged to >= 560 px wide), then the view gave up
-        assert "--view: cannot show the frames (no GUI here); going on without the view" in err
-        assert len(shown) == 1 and shown[0][1] >= 560 and shown[0][2] == 3
-    assert len(read_csv(out)) == 5 * 41
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    assert view_target("auto") == target
+    assert view_target("v.rrd") == "v.rrd" and view_target("web") == "web"
 
 
 def test_stream_releases_the_capture_when_closed_or_collected(frames):
@@ -283,7 +270,8 @@ def test_source_labels_hide_passwords():
     (["--camera", "SMALL", "--calibration", "CAL"], r"camera 0#\d+: the calibration \(fingerprint \w+\) was "
                                                     r"made for 160x120 frames, got 80x60"),
     (["--camera", "FAKE", "frames.npy"], "give FRAMES or --camera, not both"),
-    (["frames.npy", "--view"], "--policy, --view, --max-frames and --seconds are options of a --camera"),
+    (["frames.npy", "--view"], "--policy, --view, --record, --max-frames and --seconds are options of a "
+                               "--camera"),
     ([], r"no frames given: .* or --camera INDEX\|URL"),
 ])
 def test_live_errors_exit_2_and_leave_no_file(tmp_path, frames, cal, monkeypatch, capsys, case, match):
