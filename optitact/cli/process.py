@@ -521,62 +521,79 @@ def _run_live(args) -> int:
           f"Ctrl-C stops", file=sys.stderr)
     reason, last, n, n_b, flagged = "the stream ended", None, 0, 0, False
     view = recorder = None
-    t0 = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        out = stack.enter_context(LiveWriter(args.out, calibration=cal, drift=track is not None))
-        ctrl_c = stack.enter_context(_CtrlC())
-        opened = bool(built)  # the pipeline is known: the viewer and recorder start before the first frame
-        if opened:
-            view, recorder = _outputs(args, stack, built[-1], cal, label, baseline)
-        try:
-            for lf in frames:
-                if not opened:  # a camera model of the first frame's size: known now
-                    view, recorder = _outputs(args, stack, built[-1], cal, label, baseline)
-                    opened = True
-                out.write(lf)
-                if recorder is not None:
-                    recorder.write(lf, ready=lf.wall_time + lf.latency, latency=lf.latency, drift=lf.drift)
-                if view is not None:
-                    view.log(lf, latency_s=lf.latency)
-                last, n, n_b = lf, n + 1, n_b + lf.baseline
-                if lf.drift is not None and lf.drift.flag and not flagged:
-                    print(f"optitact: warning: drift beyond what tracking follows at {lf.source} "
-                          f"({lf.drift.reason}); take a new baseline with the sensor unloaded", file=sys.stderr)
-                flagged = bool(lf.drift is not None and lf.drift.flag)
-                if ctrl_c.requested:
-                    reason = "stopped by Ctrl-C"
-                    break
-        except KeyboardInterrupt:
-            reason = "stopped by Ctrl-C"
-        finally:
-            frames.close()
-        seconds = time.perf_counter() - t0
-        if n == 0 and reason == "the stream ended":
-            raise InputError(f"{label}: the stream gave no frame")
-    if reason == "the stream ended" and args.max_frames is not None and n >= args.max_frames:
-        reason = f"--max-frames {args.max_frames} reached"
-    elif reason == "the stream ended" and args.seconds is not None and seconds >= args.seconds:
-        reason = f"--seconds {args.seconds:g} reached"
-    if args.plot is not None and last is not None:
-        last.forces.save_plot(args.plot, last.frame, built[-1].camera,
-                              title=f"estimated forces (last frame, {last.source})")
-        print(f"optitact: wrote the force-field plot of the last frame to {args.plot}", file=sys.stderr)
-    dropped = last.dropped if last is not None else 0
-    also = f" and per-frame resultants to {per_frame_path(args.out)}" if cal else ""
-    print(f"optitact: {reason}: {n} frames processed ({n_b} of them baseline), {dropped} dropped, "
-          f"{n / max(seconds, 1e-9):.1f} frames/s; wrote {'forces' if cal else 'readings'} of {n} frames to "
-          f"{args.out}{also}", file=sys.stderr)
-    if recorder is not None:
-        print(f"optitact: recorded {n} frames ({args.record_frames} frames) to {args.record}"
-              + (f"; the stream waited {recorder.waited:.1f} s for the disk" if recorder.waited > 0.05 else ""),
+    views = contextlib.ExitStack()  # the view outlives the tables: a web viewer keeps serving after the end
+    try:
+        t0 = time.perf_counter()
+        with contextlib.ExitStack() as stack:
+            out = stack.enter_context(LiveWriter(args.out, calibration=cal, drift=track is not None))
+            ctrl_c = stack.enter_context(_CtrlC())
+            opened = bool(built)  # a known pipeline: the viewer and recorder start before the first frame
+            if opened:
+                view, recorder = _outputs(args, stack, views, built[-1], cal, label, baseline)
+            try:
+                for lf in frames:
+                    if not opened:  # a camera model of the first frame's size: known now
+                        view, recorder = _outputs(args, stack, views, built[-1], cal, label, baseline)
+                        opened = True
+                    out.write(lf)
+                    if recorder is not None:
+                        recorder.write(lf, ready=lf.wall_time + lf.latency, latency=lf.latency,
+                                       drift=lf.drift)
+                    if view is not None:
+                        view.log(lf, latency_s=lf.latency)
+                    last, n, n_b = lf, n + 1, n_b + lf.baseline
+                    if lf.drift is not None and lf.drift.flag and not flagged:
+                        print(f"optitact: warning: drift beyond what tracking follows at {lf.source} "
+                              f"({lf.drift.reason}); take a new baseline with the sensor unloaded",
+                              file=sys.stderr)
+                    flagged = bool(lf.drift is not None and lf.drift.flag)
+                    if ctrl_c.requested:
+                        reason = "stopped by Ctrl-C"
+                        break
+            except KeyboardInterrupt:
+                reason = "stopped by Ctrl-C"
+            finally:
+                frames.close()
+            seconds = time.perf_counter() - t0
+            if n == 0 and reason == "the stream ended":
+                raise InputError(f"{label}: the stream gave no frame")
+        if reason == "the stream ended" and args.max_frames is not None and n >= args.max_frames:
+            reason = f"--max-frames {args.max_frames} reached"
+        elif reason == "the stream ended" and args.seconds is not None and seconds >= args.seconds:
+            reason = f"--seconds {args.seconds:g} reached"
+        if args.plot is not None and last is not None:
+            last.forces.save_plot(args.plot, last.frame, built[-1].camera,
+                                  title=f"estimated forces (last frame, {last.source})")
+            print(f"optitact: wrote the force-field plot of the last frame to {args.plot}", file=sys.stderr)
+        dropped = last.dropped if last is not None else 0
+        also = f" and per-frame resultants to {per_frame_path(args.out)}" if cal else ""
+        what = "forces" if cal else "readings"
+        print(f"optitact: {reason}: {n} frames processed ({n_b} of them baseline), {dropped} dropped, "
+              f"{n / max(seconds, 1e-9):.1f} frames/s; wrote {what} of {n} frames to {args.out}{also}",
               file=sys.stderr)
-    if view is not None and getattr(view, "path", None) is not None:
-        print(f"optitact: wrote the view to {view.path} (open it with: rerun {view.path})", file=sys.stderr)
+        if recorder is not None:
+            slow = recorder.waited > 0.05
+            waited = f"; the stream waited {recorder.waited:.1f} s for the disk" if slow else ""
+            print(f"optitact: recorded {n} frames ({args.record_frames} frames) to {args.record}{waited}",
+                  file=sys.stderr)
+        if view is not None and getattr(view, "path", None) is not None:
+            print(f"optitact: wrote the view to {view.path} (open it with: rerun {view.path})", file=sys.stderr)
+        if view is not None and getattr(view, "url", None) and reason != "stopped by Ctrl-C":
+            # the web viewer's server lives in this process: keep the session there until the user is done
+            print(f"optitact: --view: the web viewer keeps the session at {view.url}; Ctrl-C quits",
+                  file=sys.stderr)
+            try:
+                while True:
+                    time.sleep(0.5)
+            except KeyboardInterrupt:
+                pass
+    finally:
+        views.close()
     return 0
 
 
-def _outputs(args, stack, pipe, cal, label: str, baseline):
-    """The ``--view`` and ``--record`` of a stream, opened at its first frame and closed with ``stack``."""
+def _outputs(args, stack, views, pipe, cal, label: str, baseline):
+    """The ``--record`` and ``--view`` of a stream, closed with ``stack`` and ``views``."""
     view = recorder = None
     if args.record is not None:
         from optitact.live.record import Recorder
@@ -591,7 +608,7 @@ def _outputs(args, stack, pipe, cal, label: str, baseline):
         from optitact.live.viewer import open_view
 
         target = view_target(args.view)
-        view = stack.enter_context(open_view(target, sensor=pipe.sensor, camera=pipe.camera, calibration=cal,
+        view = views.enter_context(open_view(target, sensor=pipe.sensor, camera=pipe.camera, calibration=cal,
                                              name="optitact"))
         if getattr(view, "url", None):
             print(f"optitact: --view: the web viewer is at {view.url}", file=sys.stderr)

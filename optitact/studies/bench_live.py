@@ -281,7 +281,7 @@ def _plot(out: dict, path) -> None:
     rows = out["rows"]
     rates = sorted({r["fps"] for r in rows})
     names = [c[0] for c in CONFIGS if any(r["config"] == c[0] for r in rows)]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     width = 0.8 / max(len(names), 1)
     for j, name in enumerate(names):
         xs = np.arange(len(rates)) + (j - (len(names) - 1) / 2) * width
@@ -292,11 +292,27 @@ def _plot(out: dict, path) -> None:
         axes[0].bar(xs, med, width, label=name)
         axes[0].errorbar(xs, med, yerr=[np.zeros(len(med)), np.subtract(p99, med)], fmt="none", ecolor="k",
                          capsize=2, lw=0.8)
-        drop = [next((100 * r["dropped"] / r["frames"] for r in rows if r["fps"] == f and r["config"] == name),
-                     np.nan) for f in rates]
-        axes[1].bar(xs, drop, width, label=name)
+        def pct(key, f, name=name):
+            return next((100 * r[key] / r["frames"] for r in rows if r["fps"] == f and r["config"] == name),
+                        np.nan)
+
+        start = [pct("dropped_at_start", f) for f in rates]
+        after = [pct("dropped_after_start", f) for f in rates]
+        bars = axes[1].bar(xs, start, width, label=name)
+        axes[1].bar(xs, after, width, bottom=start, color=bars.patches[0].get_facecolor(), hatch="//",
+                    edgecolor="k", lw=0.5)
+        view = [next((r["viewer_ms_median"] for r in rows if r["fps"] == f and r["config"] == name), None)
+                for f in rates]
+        if all(v is not None for v in view):
+            p99 = [next(r["viewer_ms_p99"] for r in rows if r["fps"] == f and r["config"] == name)
+                   for f in rates]
+            axes[2].bar(xs, view, width, label=name, color=bars.patches[0].get_facecolor())
+            axes[2].errorbar(xs, view, yerr=[np.zeros(len(view)), np.subtract(p99, view)], fmt="none",
+                             ecolor="k", capsize=2, lw=0.8)
     for ax, title, unit in ((axes[0], "capture to forces (median, bar to p99)", "ms"),
-                            (axes[1], "dropped frames", "% of frames")):
+                            (axes[1], "dropped frames (solid: while the baseline is set up;\n"
+                                      "hatched: after it)", "% of frames"),
+                            (axes[2], "capture to viewer SDK (median, bar to p99)", "ms")):
         ax.set_xticks(np.arange(len(rates)), [f"{f:g} fps" for f in rates])
         ax.set_title(title)
         ax.set_ylabel(unit)
