@@ -137,7 +137,7 @@ def add_parsers(sub) -> None:
     live.add_argument("--frames", choices=("lossless", "lossy", "none"), default="lossless",
                       dest="record_frames",
                       help="with --record: store the frames losslessly (default: raw images in "
-                           "Zstandard-compressed chunks), as JPEG (lossy: about a tenth of the size, but "
+                           "Zstandard-compressed chunks), as JPEG (lossy: a tenth of the size or less, but "
                            "re-processed forces differ) or not at all (forces only; cannot be re-processed)")
     live.add_argument("--drift", choices=("track", "off"), default="track",
                       help="track: follow slow drift of the rim light, the black level and a sub-pixel creep "
