@@ -225,7 +225,7 @@ def save_plot(name: str, result: Mapping, path) -> Path:
 _DESCRIPTIVE = ("reference", "note")
 
 
-def _paired(published: Mapping, ours, prefix: str = "") -> list[tuple[str, Any, Any]]:
+def paired_figures(published: Mapping, ours, prefix: str = "") -> list[tuple[str, Any, Any]]:
     """Rows ``(key path, result's value there or None, published value)`` for every leaf of ``published``."""
     rows = []
     for key, pub in published.items():
@@ -233,7 +233,7 @@ def _paired(published: Mapping, ours, prefix: str = "") -> list[tuple[str, Any, 
             continue
         mine = ours.get(key) if isinstance(ours, Mapping) else None
         if isinstance(pub, Mapping):
-            rows += _paired(pub, mine, f"{prefix}{key}/")
+            rows += paired_figures(pub, mine, f"{prefix}{key}/")
         else:
             rows.append((f"{prefix}{key}", mine, pub))
     return rows
@@ -250,7 +250,8 @@ def key_figures(name: str, result: Mapping) -> list[tuple[str, Any, Any]]:
 
     Examples
     --------
-    Palpation has no hook of its own (the generic pairing):
+    Palpation's hook pairs them as the generic pairing does (:func:`paired_figures`), adding the
+    ablation's rows to a full run's:
 
     >>> rows = key_figures("palpation", {"n_folds": 5, "recognition": {"mu/left": [0.8, 0.95]},
     ...                                  "published": {"reference": "a paper", "n_folds": 10,
@@ -271,4 +272,4 @@ def key_figures(name: str, result: Mapping) -> list[tuple[str, Any, Any]]:
         except (KeyError, IndexError, TypeError) as exc:
             raise InputError(f"result is not a complete {name!r} study result "
                              f"({type(exc).__name__}: {exc})") from exc
-    return _paired(result.get("published") or {}, result)
+    return paired_figures(result.get("published") or {}, result)

@@ -130,8 +130,8 @@ def _normalised(d: np.ndarray) -> np.ndarray:
     return d / top if top > 0 else d.copy()
 
 
-def palpation_distances(dataset: PalpationDataset, *, window: int | None = None,
-                        progress: bool = False) -> dict[str, np.ndarray]:
+def palpation_distances(dataset: PalpationDataset, *, window: int | None = None, progress: bool = False,
+                        features: tuple[str, ...] = FEATURES) -> dict[str, np.ndarray]:
     """The nine DTW distance metrics of the study, each normalised by its largest pairwise distance.
 
     Parameters
@@ -141,12 +141,14 @@ def palpation_distances(dataset: PalpationDataset, *, window: int | None = None,
         See :func:`dtw_distance`.
     progress : bool
         tqdm progress bar on stderr.
+    features : tuple of str
+        Which of :data:`FEATURES` to compute (default all).
 
     Returns
     -------
     dict
         ``"{feature}/{sensor}"`` → (n, n) matrix with values in [0, 1], for
-        ``feature`` in :data:`FEATURES` and ``sensor`` in :data:`SENSORS`.
+        ``feature`` in ``features`` and ``sensor`` in :data:`SENSORS`.
 
     Notes
     -----
@@ -161,11 +163,14 @@ def palpation_distances(dataset: PalpationDataset, *, window: int | None = None,
 
     if not isinstance(dataset, PalpationDataset):
         raise TypeError(f"dataset must be a PalpationDataset, got {type(dataset).__name__}")
+    features = tuple(features)
+    if not features or any(f not in FEATURES for f in features):
+        raise InputError(f"features must be a non-empty subset of {FEATURES}, got {features!r}")
     feats = {s: dataset.features(s) for s in ("left", "right")}
     columns = {"mu": 0, "sigma": 1, "mu+sigma": slice(0, 2)}
     out = {}
-    bar = tqdm(total=len(FEATURES) * 2, desc="thread8 DTW", file=sys.stderr, disable=not progress)
-    for feature in FEATURES:
+    bar = tqdm(total=len(features) * 2, desc="thread8 DTW", file=sys.stderr, disable=not progress)
+    for feature in features:
         per = {}
         for sensor in ("left", "right"):
             per[sensor] = _normalised(dtw_matrix([f[:, columns[feature]] for f in feats[sensor]],
@@ -174,7 +179,106 @@ def palpation_distances(dataset: PalpationDataset, *, window: int | None = None,
             bar.update()
         out[f"{feature}/both"] = _normalised(per["left"] + per["right"])
     bar.close()
-    return {f"{f}/{s}": out[f"{f}/{s}"] for f in FEATURES for s in SENSORS}
+    return {f"{f}/{s}": out[f"{f}/{s}"] for f in FEATURES if f in features for s in SENSORS}
+
+
+#: The modelled effects of the set-up and how :func:`without` switches each off (field → value), on the
+#: jaws' :class:`~optitact.taxels.thread8.Thread8Config` (``sensor``) or the :class:`GraspProtocol`.
+EFFECTS = {
+    "sensor spread": {"sensor": {"sensitivity_spread": 0.0, "sensor_gain_spread": 0.0,
+                                 "threshold_spread": 0.0}},
+    "mounting": {"sensor": {"mount_spread_mm": 0.0, "mount_spread_rad": 0.0, "mount_tilt_rad": 0.0}},
+    "object pose": {"protocol": {"offset_mm": 0.0, "angle_range_rad": 0.0}},
+    "grasp force": {"protocol": {"step_error_mm": 0.0}},
+    "contact onset": {"protocol": {"latency_s": (0.0, 0.0)}},
+    "film hysteresis+creep": {"sensor": {"hysteresis": 0.0, "creep_fraction": 0.0}},
+    "pad relaxation": {"sensor": {"pad_relax_fraction": (), "pad_relax_tau_s": ()}},
+    "drift": {"sensor": {"drift_gain_spread": 0.0}},
+    "crosstalk": {"sensor": {"floating_rows": False}},
+}
+#: Grasps per object and folds of each ablation variant in a full run (half the study's grasps: ten
+#: variants in about three minutes on two cores).
+ABLATION_SIZE = (5, 5)
+#: Feature sets of the ablation (those the paper reports).
+ABLATION_FEATURES = ("mu", "mu+sigma")
+
+
+def without(effect: str | None, sensors: tuple[Thread8, Thread8] | None = None,
+            protocol: GraspProtocol | None = None) -> tuple[tuple[Thread8, Thread8], GraspProtocol]:
+    """The jaws and the protocol with ``effect`` (a key of :data:`EFFECTS`; None: none) switched off.
+
+    Examples
+    --------
+    >>> (left, _), proto = without("grasp force")
+    >>> proto.step_error_mm, left.config.drift_gain_spread > 0
+    (0.0, True)
+    """
+    sensors = default_jaws(sensors)
+    protocol = GraspProtocol() if protocol is None else protocol
+    if effect is None:
+        return sensors, protocol
+    if effect not in EFFECTS:
+        raise InputError(f"effect must be one of {list(EFFECTS)}, got {effect!r}")
+    change = EFFECTS[effect]
+    if "sensor" in change:
+        sensors = tuple(Thread8(dataclasses.replace(s.config, **change["sensor"])) for s in sensors)
+    if "protocol" in change:
+        protocol = dataclasses.replace(protocol, **change["protocol"])
+    return sensors, protocol
+
+
+def recognition_rates(*, objects: tuple[PalpationObject, ...], n_per_object: int, n_folds: int, seed: int,
+                      sensors: tuple[Thread8, Thread8] | None = None, protocol: GraspProtocol | None = None,
+                      features: tuple[str, ...] = ABLATION_FEATURES, ks=(1, 3, 5),
+                      progress: bool = False) -> dict[str, list[float]]:
+    """Mean k-NN recognition rate per metric and k of one simulated data set: ``{metric: [rate per k]}``.
+
+    ``seed`` seeds the grasps and the folds as in :func:`run`; the metrics are
+    ``"{feature}/{sensor}"`` for ``features`` and :data:`SENSORS`.
+    """
+    s_data, s_cv = study_seeds(seed, 2)
+    data = palpation_dataset(n_per_object=n_per_object, seed=s_data, objects=objects, protocol=protocol,
+                             sensors=sensors, progress=progress)
+    table = classify(palpation_distances(data, features=features), data.labels, ks=tuple(ks),
+                     n_folds=n_folds, seed=s_cv % 2 ** 31)
+    out: dict[str, list[float]] = {}
+    for metric, rate in zip(table["metric"], table["mean"], strict=True):
+        out.setdefault(metric, []).append(float(rate))
+    return out
+
+
+def palpation_ablation(*, objects: tuple[PalpationObject, ...] | None = None, n_per_object: int = 5,
+                       n_folds: int = 5, seed: int = 0, effects=None,
+                       progress: bool = False) -> dict[str, dict[str, list[float]]]:
+    """Recognition with every effect on (``"all on"``) and with each of ``effects`` switched off in turn.
+
+    Parameters
+    ----------
+    objects : sequence of PalpationObject, optional
+        Default all :data:`~optitact.taxels.grasp.OBJECTS`.
+    n_per_object, n_folds, seed
+        Size of each data set and its cross validation; every variant uses the
+        same seed (the same poses and noise draws where the variant draws them).
+    effects : sequence of str, optional
+        Keys of :data:`EFFECTS` (default all).
+    progress : bool
+        tqdm progress bars on stderr.
+
+    Returns
+    -------
+    dict
+        ``{"all on" or "no <effect>": {"{feature}/{sensor}": [rate at k = 1, 3, 5]}}`` for the
+        :data:`ABLATION_FEATURES`.
+    """
+    objects = OBJECTS if objects is None else tuple(objects)
+    effects = tuple(EFFECTS) if effects is None else tuple(effects)
+    out = {}
+    for effect in (None, *effects):
+        sensors, protocol = without(effect)
+        out["all on" if effect is None else f"no {effect}"] = recognition_rates(
+            objects=objects, n_per_object=n_per_object, n_folds=n_folds, seed=seed, sensors=sensors,
+            protocol=protocol, progress=progress)
+    return out
 
 
 
@@ -200,7 +304,9 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
         (:meth:`PalpationDataset.as_dict`), ``recognition`` (per metric the
         [lowest, highest] mean rate over the ks, as ``PUBLISHED["recognition"]``),
         ``jaws`` (each jaw's drawn sensor gain and mounting), ``examples`` (μ and σ series of the
-        first grasp of every object, left jaw), ``rate_hz`` and ``chance``.
+        first grasp of every object, left jaw), ``rate_hz``, ``chance``, and with ``full``
+        ``ablation`` (:func:`palpation_ablation` on all objects at :data:`ABLATION_SIZE`, same seed;
+        None in a quick run, which stays as fast as before) and ``ablation_size``.
     """
     if full:
         objects, n_per, n_folds = OBJECTS, 10, 10
@@ -220,13 +326,18 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
         recognition[metric] = (min(lo, float(rate)), max(hi, float(rate)))
     feats = data.features("left")
     first = [int(np.flatnonzero(data.labels == i)[0]) for i in range(len(objects))]
+    ablation = (palpation_ablation(objects=objects, n_per_object=ABLATION_SIZE[0], n_folds=ABLATION_SIZE[1],
+                                   seed=seed, progress=progress) if full else None)
     return {
+        "ablation": ablation, "ablation_size": {"n_per_object": ABLATION_SIZE[0], "n_folds": ABLATION_SIZE[1]}
+        if full else None,
         "config": dataclasses.asdict(sensors[0].config), "protocol": dataclasses.asdict(protocol),
         "objects": [o.as_dict() for o in objects], "n_per_object": n_per, "n_folds": n_folds, "ks": list(ks),
         "chance": 1.0 / len(objects), "rate_hz": sensors[0].layout.rate_hz, "table": table,
         "recognition": {m: list(v) for m, v in recognition.items()},
         "jaws": [{"sensor_gain": s.sensor_gain, "mount_offset_mm": list(s.mount_offset_mm),
-                  "mount_angle_rad": s.mount_angle_rad} for s in sensors],
+                  "mount_angle_rad": s.mount_angle_rad, "mount_tilt_rad": s.config.mount_tilt_rad}
+                 for s in sensors],
         "grasps": data.as_dict(),
         "examples": {"object": [objects[i].name for i in range(len(objects))],
                      "mu": [feats[j][:, 0].tolist() for j in first],
@@ -302,5 +413,21 @@ PUBLISHED = {
             "objects were confused with each other",
 }
 
+def key_figures(result: dict) -> list[tuple[str, object, object]]:
+    """The published rates beside ours, then (full runs) one ablation row per variant.
+
+    An ablation row holds the mean rate over k = 1, 3, 5 of ``mu`` and ``mu+sigma`` for the left, right
+    and both jaws (in that order; the paper has no ablation).
+    """
+    from optitact.studies._protocol import paired_figures
+
+    rows = paired_figures(result.get("published") or {}, result)
+    for variant, rates in (result.get("ablation") or {}).items():
+        vals = [round(float(np.mean(rates[f"{f}/{s}"])), 3) for f in ABLATION_FEATURES for s in SENSORS]
+        rows.append((f"ablation {variant}: mu L/R/B, mu+sigma L/R/B", vals, None))
+    return rows
+
+
 STUDY = Study(name="palpation", summary="thread8 arrays on gripper jaws: object recognition by DTW k-NN on the "
-              "frame mean and standard deviation", run=run, draw=draw, published=PUBLISHED, figsize=(15.0, 9.0))
+              "frame mean and standard deviation", run=run, draw=draw, published=PUBLISHED, figsize=(15.0, 9.0),
+              key_figures=key_figures)

@@ -39,8 +39,8 @@ from optitact.taxels.sources import Indenter, Layout, Scenario, TactileSource
 from optitact.taxels.base import freeze_fields
 from optitact.taxels.piezo16 import Piezo16
 
-__all__ = ["trace", "tracing_direction", "radial_line", "combined_distribution", "features", "WidthClassifier",
-           "pair_separation", "diameter_resolution"]
+__all__ = ["trace", "finger_errors", "tracing_direction", "radial_line", "combined_distribution", "features",
+           "WidthClassifier", "pair_separation", "diameter_resolution"]
 
 
 def _n_steps(n_steps) -> int:
@@ -68,9 +68,52 @@ def tracing_direction(angle_rad: float) -> np.ndarray:
     return n if n[main] > 0 else -n
 
 
+def finger_errors(rng: np.random.Generator, shape, *, depth_spread_mm: float = 0.0,
+                  step_jitter_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    r"""The finger's pressing-depth and position errors at each step: independent Gaussians.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the draws.
+    shape : int or tuple of int
+        One draw per step (e.g. ``(n_traces, n_steps)``).
+    depth_spread_mm : float
+        1-sigma of the pressing depth about its set value, mm (>= 0; 0: exact).
+    step_jitter_mm : float
+        1-sigma of the finger's position about each nominal step, along the
+        tracing direction, mm (>= 0; 0: exact).
+
+    Returns
+    -------
+    depth_error_mm, position_error_mm : ndarray
+        Arrays of ``shape``; zeros (and no draw from ``rng``) where the spread is 0.
+
+    Notes
+    -----
+    The finger re-presses at every step (it moves, then presses to the set
+    depth and samples): the depth and the position errors of consecutive
+    steps are independent, each the finger's positioning repeatability.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d, x = finger_errors(np.random.default_rng(0), (2, 3), depth_spread_mm=0.02)
+    >>> d.shape, bool(np.all(x == 0))
+    ((2, 3), True)
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy Generator, got {type(rng).__name__}")
+    sd = positive(depth_spread_mm, "depth_spread_mm", allow_zero=True)
+    sx = positive(step_jitter_mm, "step_jitter_mm", allow_zero=True)
+    dz = sd * rng.standard_normal(shape) if sd > 0 else np.zeros(shape)
+    dx = sx * rng.standard_normal(shape) if sx > 0 else np.zeros(shape)
+    return dz, dx
+
+
 def trace(source: TactileSource, diameter_mm: float, n_steps: int, *, depth_mm: float = 0.7,
           offset_mm: float = 0.0, angle_rad: float = 0.0, stroke_mm: float = 2.0, samples_per_step: int = 1,
-          seed: int | None = None) -> np.ndarray:
+          seed: int | None = None, depth_spread_mm: float = 0.0, step_jitter_mm: float = 0.0) -> np.ndarray:
     r"""Frames of one active trace across a pipe: ``n_steps`` steps of ``stroke_mm / n_steps``.
 
     Parameters
@@ -93,7 +136,10 @@ def trace(source: TactileSource, diameter_mm: float, n_steps: int, *, depth_mm: 
     samples_per_step : int
         Frames recorded while the finger rests at each step.
     seed : int, optional
-        Seed of the readout noise.
+        Seed of the readout noise (and of the finger's errors).
+    depth_spread_mm, step_jitter_mm : float
+        The finger's pressing-depth and position repeatability, 1-sigma per
+        step, mm (:func:`finger_errors`; 0, the default: an exact finger).
 
     Returns
     -------
@@ -109,7 +155,10 @@ def trace(source: TactileSource, diameter_mm: float, n_steps: int, *, depth_mm: 
     :math:`(o - j W/N)\,\hat n` on the pad (:math:`o` = ``offset_mm``), and
     electrode :math:`i` of a radial grid line samples the pipe at
     :math:`x_i + j W/N` in the pipe's frame. Frame times are
-    ``arange(T) · sample_period``.
+    ``arange(T) · sample_period``. With a finger's errors, step :math:`j`
+    presses to ``depth_mm`` + :math:`\delta_j` at :math:`o - jW/N + \xi_j`
+    (both drawn from ``default_rng((seed, 1))``, so the readout noise of a
+    seed is unchanged); depths are clipped at 0.
     """
     if not isinstance(source, TactileSource):
         raise TypeError(f"source must be a TactileSource, got {type(source).__name__}")
@@ -121,10 +170,13 @@ def trace(source: TactileSource, diameter_mm: float, n_steps: int, *, depth_mm: 
     offset, angle = _number(offset_mm, "offset_mm"), _number(angle_rad, "angle_rad")
     seed = seed_value(seed)
     normal = tracing_direction(angle)
-    pos = np.repeat(offset - np.arange(n) * stroke / n, k)
+    dz, dx = finger_errors(np.random.default_rng(None if seed is None else (seed, 1)), n,
+                           depth_spread_mm=depth_spread_mm, step_jitter_mm=step_jitter_mm)
+    pos = np.repeat(offset - np.arange(n) * stroke / n + dx, k)
+    depths = np.repeat(np.clip(depth + dz, 0.0, None), k)
     scenario = Scenario(Indenter("cylinder", size_mm=radius), np.arange(n * k) / source.layout.rate_hz,
                         x_mm=pos * normal[0], y_mm=pos * normal[1], angle_rad=angle,
-                        depth_mm=depth)
+                        depth_mm=depths)
     return source.frames(scenario, seed=seed)
 
 

@@ -43,7 +43,8 @@ from optitact.taxels.sources import Indenter, Layout, Scenario
 from optitact.taxels.base import TaxelSource, noise_rng, unit_gains
 from optitact.taxels.indenter import overlap, surface_height
 
-__all__ = ["Piezo16Config", "Piezo16", "SUPPORTED_SHAPES", "FINGER_PAD_MASK", "unit_voltage"]
+__all__ = ["Piezo16Config", "Piezo16", "SUPPORTED_SHAPES", "FINGER_PAD_MASK", "unit_voltage",
+           "boussinesq_kernel", "leak_kernel"]
 
 #: Indenter shapes :class:`Piezo16` simulates.
 SUPPORTED_SHAPES = ("cylinder", "sphere", "flat")
@@ -158,7 +159,9 @@ class Piezo16Config:
     noise_v: float = 0.005                 # V, 1-sigma readout noise, added before the law's clipping
     sample_period_s: float = 0.001         # s, one scan of all units
     grid_mm: float = 0.1                   # mm, sub-electrode integration grid (divides side and gap)
-    spread_cutoff: float = 4.0             # spreading kernel truncated at this many elastomer thicknesses
+    spread_cutoff: float = 4.0             # spreading kernel truncated at this many spreading depths
+    spread_depth_mm: float | None = None   # mm, depth of the Boussinesq spreading; None: elastomer_mm
+    rubber_leak_mm: float = 0.0            # mm, decay length of lateral spreading in the rubber sheet; 0: off
 
     def __post_init__(self) -> None:
         if not isinstance(self.grid, (tuple, list)) or len(self.grid) != 2:
@@ -170,8 +173,10 @@ class Piezo16Config:
         for name in ("electrode_mm", "elastomer_mm", "rubber_mm", "gain_v_per_mm", "v_max",
                      "sample_period_s", "grid_mm", "spread_cutoff"):
             positive(getattr(self, name), name)
-        for name in ("gap_mm", "offset_v", "unit_gain_spread", "noise_v"):
+        for name in ("gap_mm", "offset_v", "unit_gain_spread", "noise_v", "rubber_leak_mm"):
             positive(getattr(self, name), name, allow_zero=True)
+        if self.spread_depth_mm is not None:
+            positive(self.spread_depth_mm, "spread_depth_mm")
         _ratio(self.electrode_mm, self.grid_mm, "electrode_mm / grid_mm")
         _ratio(self.gap_mm, self.grid_mm, "gap_mm / grid_mm")
 
@@ -181,19 +186,70 @@ class Piezo16Config:
         return self.electrode_mm + self.gap_mm
 
     @property
+    def depth_of_spreading_mm(self) -> float:
+        """Depth h of the Boussinesq spreading kernel, mm (``spread_depth_mm``, or ``elastomer_mm``)."""
+        return self.elastomer_mm if self.spread_depth_mm is None else float(self.spread_depth_mm)
+
+    @property
     def mask_array(self) -> np.ndarray:
         """The mask as a (rows, cols) bool array."""
         return np.array([[ch == "#" for ch in row] for row in self.mask], dtype=bool)
 
 
+def boussinesq_kernel(h: float, g: float, cutoff: float) -> np.ndarray:
+    r"""Boussinesq spreading kernel at depth ``h`` on a ``g`` grid, truncated at ``cutoff·h``, sum 1.
+
+    Samples :math:`K_h(r) = 3 h^3 / (2\pi (r^2 + h^2)^{5/2})` (the vertical
+    stress at depth :math:`h` under a unit point load on an elastic
+    half-space) at the grid's nodes and renormalises the truncated kernel.
+    Read-only (cached).
+    """
+    return _kernel(float(h), float(g), float(cutoff), 0.0)
+
+
+def leak_kernel(lam: float, g: float) -> np.ndarray:
+    r"""Lateral-spreading kernel of the conductive rubber, :math:`\propto K_0(r/\lambda)`, ``g`` grid, sum 1.
+
+    :math:`K_0` (modified Bessel function) is the Green's function of a thin
+    resistive sheet on a conductive (leaky) base: a current injected at a
+    point spreads as :math:`K_0(r/\lambda)/(2\pi\lambda^2)`, whose area
+    integral is 1. The singular centre node takes the kernel's mean over its
+    cell; truncated at :math:`8\lambda`. Read-only (cached).
+    """
+    return _leak(float(lam), float(g))
+
+
 @lru_cache(maxsize=8)
-def _kernel(h: float, g: float, cutoff: float) -> np.ndarray:
-    """Boussinesq spreading kernel at depth ``h`` on a ``g`` grid, truncated at ``cutoff·h``, sum 1."""
+def _leak(lam: float, g: float) -> np.ndarray:
+    from scipy.special import k0
+
+    m = int(math.ceil(8 * lam / g))
+    r = np.arange(-m, m + 1) * g
+    rr = np.hypot(r[:, None], r[None, :])
+    k = np.where(rr <= 8 * lam, k0(np.maximum(rr, 1e-300) / lam), 0.0)
+    # centre cell: mean of K0(r/lam) over a disc of the cell's area, 2 lam^2 (1 - (a/lam) K1(a/lam)) / a^2
+    from scipy.special import k1
+
+    a = g / math.sqrt(math.pi)
+    k[m, m] = 2 * lam ** 2 * (1 - (a / lam) * k1(a / lam)) / a ** 2
+    k /= k.sum()
+    k.setflags(write=False)
+    return k
+
+
+@lru_cache(maxsize=8)
+def _kernel(h: float, g: float, cutoff: float, leak: float) -> np.ndarray:
+    """Boussinesq kernel at depth ``h`` (truncated at ``cutoff·h``), convolved with the rubber's leak; sum 1."""
     m = int(math.ceil(cutoff * h / g))
     r = np.arange(-m, m + 1) * g
     r2 = r[:, None] ** 2 + r[None, :] ** 2
     k = np.where(r2 <= (cutoff * h) ** 2, 1.0 / (r2 + h * h) ** 2.5, 0.0)
     k /= k.sum()
+    if leak > 0:
+        from scipy.signal import fftconvolve
+
+        k = np.clip(fftconvolve(k, _leak(leak, g)), 0.0, None)
+        k /= k.sum()
     k.setflags(write=False)
     return k
 
@@ -262,7 +318,7 @@ class Piezo16(TaxelSource):
         g = c.grid_mm
         self._n_e = _ratio(c.electrode_mm, g, "electrode_mm / grid_mm")
         self._sub = self._n_e + _ratio(c.gap_mm, g, "gap_mm / grid_mm")
-        self._kernel = _kernel(c.elastomer_mm, g, c.spread_cutoff)
+        self._kernel = _kernel(c.depth_of_spreading_mm, g, c.spread_cutoff, float(c.rubber_leak_mm))
         self._margin = (self._kernel.shape[0] - 1) // 2
         rows, cols = c.grid
         pitch = c.pitch_mm

@@ -35,7 +35,7 @@ from optitact.taxels.sources import Indenter, Layout, Scenario
 from optitact.taxels.base import TaxelSource, fraction, noise_rng, unit_gains
 from optitact.taxels.indenter import surface_height
 
-__all__ = ["Thread8Config", "Thread8", "SUPPORTED_SHAPES"]
+__all__ = ["Thread8Config", "Thread8", "SUPPORTED_SHAPES", "prony_relax", "matrix_scan_voltage"]
 
 #: Indenter shapes :class:`Thread8` simulates.
 SUPPORTED_SHAPES = ("sphere", "cylinder", "box", "flat")
@@ -60,6 +60,51 @@ class Thread8Config:
     was glued on its jaw (0: exactly centred and aligned, the default for a
     sensor on its own; :func:`optitact.taxels.grasp.default_jaws` uses 1 mm
     and 3°: placement by eye). Set all three to 0 for an ideal sensor.
+
+    *Effects of a sensor on a gripper jaw* (all off by default, so a bare
+    sensor is unchanged; :func:`optitact.taxels.grasp.default_jaws` switches
+    them on with the values below):
+
+    - ``threshold_spread``: 1-sigma of ln(onset threshold) across taxels
+      (``unit_seed``). Each crossing of two sewn threads is pre-loaded by the
+      threads' tension, which differs from stitch to stitch, so each taxel
+      starts conducting at its own pressure: the per-taxel *offset* of a
+      hand-made sensor (jaws: 0.2, the ±20 % spread of hand-sewn stitches'
+      tension, of the order of the sensitivity spread of hand-made
+      piezoresistive fabric sensors).
+    - ``mount_tilt_rad``: the patch glued at a tilt about its y axis: the
+      glue/pad under it is a wedge, so one edge sits ``pitch * cols * tan(tilt)``
+      further from the object than the other (sign: positive recesses +x).
+      The recessed side touches later and less: the sensor *sees less of the
+      object*, and what it sees depends on where the object sits. A hand-glued
+      patch on a 5 mm pad: 0.3–1 mm across 20 mm, i.e. 1°–3°.
+    - ``pad_relax_fraction`` / ``pad_relax_tau_s``: the silicone pad is
+      viscoelastic; its relaxation modulus is the Prony series
+      :math:`E(t) = E_0 [1 - \sum_i g_i (1 - e^{-t/\tau_i})]` (a generalised
+      standard linear solid). Soft silicone rubbers relax by 10–30 % within
+      10–100 s with a fast (0.1–1 s) and a slow (10–100 s) branch (the
+      range of published stress-relaxation tests of Ecoflex, Dragon Skin
+      and Sylgard 184 elastomers): jaws use :math:`g = (0.10, 0.10)`,
+      :math:`\tau = (0.5, 20)` s. Empty: elastic pad. Applied to the
+      pressures of a ``depth_mm`` scenario, scaled by the pad's share of the
+      series compliance (a soft object relaxes the pad's pressure less).
+    - ``drift_gain_spread``: 1-sigma of ln(sensitivity) drift between recordings
+      (grasps). Piezoresistive composites drift with temperature, humidity and
+      their load history (incomplete recovery after the previous grasp): their
+      sensitivity changes by about 10 % between otherwise equal loadings
+      (published characterisations of Velostat/Linqstat films report drift
+      and repeatability errors of 5–20 %). Jaws: 0.1. Drawn per
+      :meth:`Thread8.frames` call (or given as its ``gain``).
+    - ``floating_rows``: the scan drives one row at V₊ and reads each column
+      through its divider resistor while the other rows are left open (a
+      passive row/column matrix without diodes or grounded rows). Current
+      then also flows through parallel paths (driven row → pressed crossing →
+      other column → pressed crossing → open row → pressed crossing → read
+      column), so unloaded crossings inside a loaded region's rows and columns
+      read as loaded ("ghosting", crosstalk of resistive matrices; D'Alessio,
+      Sens. Actuators A 72, 1999, analyses it). Solved exactly with
+      Kirchhoff's laws (:func:`matrix_scan_voltage`). False: every crossing
+      read in isolation, the classic divider.
     """
 
     rows: int = 8                          # taxels along y
@@ -80,6 +125,12 @@ class Thread8Config:
     sensor_gain_spread: float = 0.2        # 1-sigma of ln(whole-sensor sensitivity), hand-made (unit_seed)
     mount_spread_mm: float = 0.0           # mm, 1-sigma of the patch's offset on its jaw, x and y (unit_seed)
     mount_spread_rad: float = 0.0          # rad, 1-sigma of the patch's rotation on its jaw (unit_seed)
+    threshold_spread: float = 0.0          # 1-sigma of ln(per-taxel onset threshold), stitches (unit_seed)
+    mount_tilt_rad: float = 0.0            # rad, tilt of the patch about its y axis on the jaw (wedge of glue)
+    pad_relax_fraction: tuple[float, ...] = ()  # 1, Prony weights g_i of the pad's relaxation modulus
+    pad_relax_tau_s: tuple[float, ...] = ()     # s, Prony relaxation times tau_i (as many as the weights)
+    drift_gain_spread: float = 0.0         # 1-sigma of ln(sensitivity) drift between recordings (grasps)
+    floating_rows: bool = False            # unselected rows float during the scan: crosstalk (ghosting)
     unit_seed: int = 0                     # seed of this sensor's per-taxel sensitivities
     adc_bits: int = 8                      # bits of the ADC
     rate_hz: float = 100.0                 # frames / s
@@ -100,8 +151,22 @@ class Thread8Config:
                      "pad_modulus_mpa", "pad_thickness_mm", "grid_mm"):
             positive(getattr(self, name), name)
         for name in ("sensitivity_spread", "sensor_gain_spread", "mount_spread_mm", "mount_spread_rad",
-                     "noise_v"):
+                     "noise_v", "threshold_spread", "drift_gain_spread"):
             positive(getattr(self, name), name, allow_zero=True)
+        finite(real_array(self.mount_tilt_rad, "mount_tilt_rad"), "mount_tilt_rad")
+        if not abs(self.mount_tilt_rad) < 0.5:
+            raise InputError(f"mount_tilt_rad must be within ±0.5 rad, got {self.mount_tilt_rad!r}")
+        g = real_array(self.pad_relax_fraction, "pad_relax_fraction").ravel()
+        tau = real_array(self.pad_relax_tau_s, "pad_relax_tau_s").ravel()
+        if g.shape != tau.shape:
+            raise InputError(f"pad_relax_fraction and pad_relax_tau_s must have the same length, got "
+                             f"{g.size} and {tau.size}")
+        if not (np.all(np.isfinite(g)) and np.all(g >= 0) and g.sum() < 1):
+            raise InputError(f"pad_relax_fraction must be >= 0 with a sum < 1, got {self.pad_relax_fraction!r}")
+        if not (np.all(np.isfinite(tau)) and np.all(tau > 0)):
+            raise InputError(f"pad_relax_tau_s must be > 0, got {self.pad_relax_tau_s!r}")
+        object.__setattr__(self, "pad_relax_fraction", tuple(float(v) for v in g))
+        object.__setattr__(self, "pad_relax_tau_s", tuple(float(v) for v in tau))
         fraction(self.creep_fraction, "creep_fraction")
         fraction(self.hysteresis, "hysteresis", upper=0.5)
         if self.r_pressed_ohm >= self.r_free_ohm:
@@ -116,6 +181,112 @@ class Thread8Config:
     def pad_kpa_per_mm(self) -> float:
         """Areal stiffness of the rubber pad, kPa per mm of compression (E / t)."""
         return 1e3 * self.pad_modulus_mpa / self.pad_thickness_mm
+
+
+def matrix_scan_voltage(conductance_s, v_plus: float, r_divider_ohm: float) -> np.ndarray:
+    r"""Column voltages of a passive row/column resistive matrix scanned row by row with open unselected rows.
+
+    Parameters
+    ----------
+    conductance_s : (..., rows, cols) array
+        Conductance of every crossing, S (> 0).
+    v_plus : float
+        Voltage of the driven row, V.
+    r_divider_ohm : float
+        Each column's resistor to ground, Ω.
+
+    Returns
+    -------
+    ndarray
+        (..., rows, cols): the voltage of column ``j`` while row ``i`` is driven.
+
+    Notes
+    -----
+    Unknowns: the column voltages :math:`w_c` and the open rows' voltages
+    :math:`u_r`. Kirchhoff's current law at column :math:`c`:
+    :math:`\sum_r G_{rc}(u_r - w_c) = w_c / R`; at an open row :math:`r`:
+    :math:`\sum_c G_{rc}(w_c - u_r) = 0`; the driven row :math:`u_i = V_+`.
+    With one crossing conducting the reading is the divider :math:`V_+ R G/(1 + R G)`.
+
+    Examples
+    --------
+    >>> g = np.full((2, 2), 1e-9); g[0, 0] = 1e-3
+    >>> round(float(matrix_scan_voltage(g, 5.0, 1e4)[0, 0]), 4)                       # 5 * 10 / 11
+    4.5455
+    """
+    g = np.asarray(conductance_s, dtype=float)
+    nr, nc = g.shape[-2:]
+    lead = g.shape[:-2]
+    g = g.reshape(-1, nr, nc)
+    n = nr + nc
+    a = np.zeros((g.shape[0], n, n))
+    ri, ci = np.arange(nr), nr + np.arange(nc)
+    a[:, ri, ri] = g.sum(axis=2)
+    a[:, ci, ci] = g.sum(axis=1) + 1.0 / r_divider_ohm
+    a[:, :nr, nr:] = -g
+    a[:, nr:, :nr] = -np.swapaxes(g, 1, 2)
+    out = np.empty_like(g)
+    for i in range(nr):                                 # the driven row's equation becomes u_i = V+
+        ai = a.copy()
+        ai[:, i, :] = 0.0
+        ai[:, i, i] = 1.0
+        b = np.zeros((g.shape[0], n))
+        b[:, i] = v_plus
+        out[:, i, :] = np.linalg.solve(ai, b[..., None])[:, nr:, 0]
+    return out.reshape(*lead, nr, nc)
+
+
+def prony_relax(p_elastic, t_s, fractions, taus_s) -> np.ndarray:
+    r"""Pressure of a linear viscoelastic layer (Prony series) driven by its elastic pressure history.
+
+    Parameters
+    ----------
+    p_elastic : (T, ...) array
+        The pressure an elastic layer of the instantaneous modulus would carry, in time order.
+    t_s : (T,) array
+        Sample times, s (increasing).
+    fractions, taus_s : sequences of float
+        Prony weights :math:`g_i` (sum < 1) and relaxation times :math:`\tau_i`, s.
+
+    Returns
+    -------
+    ndarray
+        :math:`p(t) = \int_0^t [1 - \sum_i g_i (1 - e^{-(t-s)/\tau_i})]\,\dot p_e(s)\,ds`
+        (the Boltzmann superposition integral of the relaxation function), same shape.
+
+    Notes
+    -----
+    With :math:`h_i = \int e^{-(t-s)/\tau_i} \dot p_e\,ds`, :math:`p = (1 - \sum g_i) p_e + \sum g_i h_i`.
+    The update is exact for a history linear between samples:
+    :math:`h_i \leftarrow a h_i + \Delta p_e \frac{\tau_i}{\Delta t}(1 - a)`, :math:`a = e^{-\Delta t/\tau_i}`.
+    The history starts at rest (:math:`p_e = 0` before the first sample, reached as a step).
+    No clipping: the caller clips where the layer cannot pull.
+
+    Examples
+    --------
+    >>> t = np.arange(0, 3.0, 0.01)
+    >>> p = prony_relax(np.minimum(t / 0.1, 1.0), t, (0.2,), (1.0,))
+    >>> round(float(p[-1]), 3)                                    # relaxing towards 1 - 0.2
+    0.811
+    """
+    p = np.asarray(p_elastic, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    out = (1.0 - float(sum(fractions))) * p
+    if p.shape[0] == 0 or not len(fractions):
+        return p.copy() if not len(fractions) else out
+    dt = np.diff(t)
+    dp = np.diff(p, axis=0)
+    for g, tau in zip(fractions, taus_s, strict=True):
+        a = np.exp(-dt / tau)
+        b = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0) * -np.expm1(-dt / tau), 1.0)
+        h = p[0].copy()
+        acc = np.empty_like(p)
+        acc[0] = h
+        for i in range(dt.size):
+            h = a[i] * h + b[i] * dp[i]
+            acc[i + 1] = h
+        out = out + g * acc
+    return out
 
 
 class Thread8(TaxelSource):
@@ -177,12 +348,18 @@ class Thread8(TaxelSource):
     poses are given in the jaw frame and moved into the patch frame by the
     mounting offset ``mount_offset_mm`` and rotation ``mount_angle_rad``
     (see :class:`Thread8Config`). The row/column scan is treated as
-    simultaneous within a frame; crosstalk between threads is not modelled.
+    simultaneous within a frame; crosstalk through the open rows of the scan
+    is modelled with ``floating_rows`` (:func:`matrix_scan_voltage`), the pad's
+    viscoelastic relaxation with ``pad_relax_fraction`` (:func:`prony_relax`).
     """
 
     name = "thread8"
     config_type = Thread8Config
     shapes = SUPPORTED_SHAPES
+    #: ``Scenario.extra``: the object's surface tilted towards +x / +y of the jaw frame (rad, out of the
+    #: patch plane): a hand-placed object is not exactly square to the jaw
+    #: (:class:`~optitact.taxels.grasp.GraspProtocol` ``tilt_spread_rad``)
+    extra = {"tilt_x_rad": 0.0, "tilt_y_rad": 0.0}
 
     def __init__(self, config: Thread8Config | None = None) -> None:
         super().__init__(config)
@@ -199,6 +376,13 @@ class Thread8(TaxelSource):
         #: the patch centre's offset on its jaw (x, y), mm, and its in-plane rotation, rad
         self.mount_offset_mm = (float(c.mount_spread_mm * zx), float(c.mount_spread_mm * zy))
         self.mount_angle_rad = float(c.mount_spread_rad * za)
+        # drawn after everything above (unchanged by these fields); spread 0 gives exactly 1
+        z_thr = rng.standard_normal((c.rows, c.cols))
+        #: per-taxel onset threshold, kPa (stitch tension of a hand-sewn crossing)
+        self.threshold_kpa = c.threshold_kpa * np.exp(c.threshold_spread * z_thr)
+        self.threshold_kpa.setflags(write=False)
+        half = c.cols * c.pitch_mm / 2.0
+        tilt = math.tan(c.mount_tilt_rad)
         self._sub = int(round(c.pitch_mm / c.grid_mm))
         ny, nx = c.rows * self._sub, c.cols * self._sub
         gy = (np.arange(ny) - (ny - 1) / 2) * c.grid_mm
@@ -208,6 +392,8 @@ class Thread8(TaxelSource):
         iy, ix = np.meshgrid(np.arange(ny) // self._sub, np.arange(nx) // self._sub, indexing="ij")
         self._gy_cell, self._gx_cell = iy.ravel(), ix.ravel()
         self._cell_area = c.grid_mm ** 2
+        #: recess of each grid point below the jaw's contact plane, mm (tilted mounting; >= 0)
+        self._recess = self._gx * tilt + half * abs(tilt) if tilt else None
 
     @cached_property
     def layout(self) -> Layout:
@@ -228,19 +414,36 @@ class Thread8(TaxelSource):
         return 2 ** self.config.adc_bits - 1
 
     # ---- contact ---------------------------------------------------------------------------------
-    def _heights(self, ind: Indenter, x, y, ang) -> np.ndarray:
-        """Object surface above its crest on the grid, (n, N) mm (inf where it cannot touch).
+    def _heights(self, ind: Indenter, x, y, ang, tilt=(0.0, 0.0)) -> np.ndarray:
+        r"""Object surface above its crest on the grid, (n, N) mm (inf where it cannot touch).
 
         The pose (jaw frame) is moved into the patch frame: minus the mounting
-        offset, rotated by minus the mounting angle.
+        offset, rotated by minus the mounting angle; a tilted patch adds its
+        recess :math:`x \tan\beta + (W/2)|\tan\beta|` (``mount_tilt_rad``
+        :math:`\beta`, patch width :math:`W`) to the gap. A tilted object
+        (``tilt`` = (tilt_x, tilt_y), jaw frame) adds the plane
+        :math:`\tan t_x (x - x_0) + \tan t_y (y - y_0)` through its crest, shifted
+        so that its nearest point on the patch is at 0 (first touch at depth 0).
         """
+        tx, ty = math.tan(float(tilt[0])), math.tan(float(tilt[1]))
         ox, oy = self.mount_offset_mm
         th = self.mount_angle_rad
         if ox or oy or th:
             dx, dy = np.asarray(x, dtype=float) - ox, np.asarray(y, dtype=float) - oy
             cs, sn = math.cos(th), math.sin(th)
             x, y, ang = cs * dx + sn * dy, -sn * dx + cs * dy, np.asarray(ang, dtype=float) - th
-        return surface_height(ind, self._gx, self._gy, x, y, ang)
+        h = surface_height(ind, self._gx, self._gy, x, y, ang)
+        if tx or ty:
+            cs, sn = math.cos(th), math.sin(th)                # the jaw-frame gradient in the patch frame
+            gx, gy = cs * tx + sn * ty, -sn * tx + cs * ty
+            xs = np.atleast_1d(np.asarray(x, dtype=float))[:, None]
+            ys = np.atleast_1d(np.asarray(y, dtype=float))[:, None]
+            plane = gx * (self._gx[None, :] - xs) + gy * (self._gy[None, :] - ys)
+            h2 = np.atleast_2d(h)
+            low = np.min(np.where(np.isfinite(h2), h2 + plane, np.inf), axis=1, keepdims=True)
+            low = np.where(np.isfinite(low), np.minimum(low, 0.0), 0.0)
+            h = (h2 + plane - low).reshape(h.shape)
+        return h if self._recess is None else h + self._recess
 
     def _stiffness(self, ind: Indenter) -> tuple[float, float]:
         """Series areal stiffness (kPa/mm) and the plastic set fraction r."""
@@ -260,7 +463,9 @@ class Thread8(TaxelSource):
         return k * umax * np.clip((u - r * umax) / ((1.0 - r) * safe), 0.0, 1.0)
 
     def _check(self, scenario: Scenario) -> Indenter:
-        return self.check_scenario(scenario)[0]
+        ind, ex = self.check_scenario(scenario)
+        self._tilt = (float(ex["tilt_x_rad"]), float(ex["tilt_y_rad"]))
+        return ind
 
     def contact(self, scenario: Scenario) -> dict[str, np.ndarray]:
         """Noise-free contact state per sample.
@@ -311,7 +516,7 @@ class Thread8(TaxelSource):
         if scenario.depth_mm is not None and static:
             # one pose: u_max = clip(running max depth - h); only points that are ever touched matter
             depth = np.asarray(scenario.depth_mm, dtype=float)
-            h = self._heights(ind, sx[:1], sy[:1], sa[:1])[0]
+            h = self._heights(ind, sx[:1], sy[:1], sa[:1], self._tilt)[0]
             hit = np.flatnonzero(h < depth.max())
             if hit.size:
                 u = np.clip(depth[:, None] - h[hit], 0.0, None)
@@ -329,7 +534,7 @@ class Thread8(TaxelSource):
             depth = np.asarray(scenario.depth_mm, dtype=float)
             for start in range(0, n_t, 128):
                 idx = np.arange(start, min(start + 128, n_t))
-                h = self._heights(ind, sx[idx], sy[idx], sa[idx])
+                h = self._heights(ind, sx[idx], sy[idx], sa[idx], self._tilt)
                 u = np.clip(depth[idx, None] - h, 0.0, None)
                 umax = np.maximum(prev[None, :], np.maximum.accumulate(u, axis=0))
                 store(idx, self._pressure(u, umax, k, r))
@@ -339,7 +544,7 @@ class Thread8(TaxelSource):
 
             depth = np.zeros(n_t)
             for i, f in enumerate(scenario.force_n):
-                h = self._heights(ind, sx[i:i + 1], sy[i:i + 1], sa[i:i + 1])[0]
+                h = self._heights(ind, sx[i:i + 1], sy[i:i + 1], sa[i:i + 1], self._tilt)[0]
 
                 def excess(d, h=h, f=f, prev=prev):
                     u = np.clip(d - h, 0.0, None)
@@ -357,11 +562,18 @@ class Thread8(TaxelSource):
                 umax = np.maximum(prev, u)
                 store(np.array([i]), self._pressure(u, umax, k, r)[None, :])
                 prev = umax
+        if scenario.depth_mm is not None and c.pad_relax_fraction:
+            share = k / c.pad_kpa_per_mm               # the pad's share of the series compliance (rigid: 1)
+            g = tuple(share * gi for gi in c.pad_relax_fraction)
+            t = np.asarray(scenario.t_s, dtype=float)
+            taxel = np.clip(prony_relax(taxel, t, g, c.pad_relax_tau_s), 0.0, None)
+            force = np.clip(prony_relax(force, t, g, c.pad_relax_tau_s), 0.0, None)
+            peak = np.clip(prony_relax(peak, t, g, c.pad_relax_tau_s), 0.0, None)
         return {"frame": np.arange(n_t), "depth_mm": depth, "force_n": force, "peak_kpa": peak,
                 "taxel_kpa": taxel}
 
     # ---- response --------------------------------------------------------------------------------
-    def resistance_ohm(self, pressure_kpa, *, sensitivity=1.0) -> np.ndarray:
+    def resistance_ohm(self, pressure_kpa, *, sensitivity=1.0, threshold_kpa=None) -> np.ndarray:
         """Static crossing resistance (Ω) at effective pressure ``pressure_kpa`` (no hysteresis or creep).
 
         Parameters
@@ -370,6 +582,8 @@ class Thread8(TaxelSource):
             Effective pressure, kPa (>= 0).
         sensitivity : float or array
             Per-taxel sensitivity factor :math:`s_i` (1 = nominal); broadcast with ``pressure_kpa``.
+        threshold_kpa : float or array, optional
+            Onset threshold(s), kPa; default the config's ``threshold_kpa``.
 
         Examples
         --------
@@ -382,7 +596,8 @@ class Thread8(TaxelSource):
             raise InputError(f"pressure_kpa must be >= 0, got minimum {p.min()}")
         c = self.config
         w = c.transition_kpa
-        excess = w * np.logaddexp(0.0, (p - c.threshold_kpa) / w)
+        thr = c.threshold_kpa if threshold_kpa is None else np.asarray(threshold_kpa, dtype=float)
+        excess = w * np.logaddexp(0.0, (p - thr) / w)
         g = 1.0 / (c.r_free_ohm - c.r_pressed_ohm) + np.asarray(sensitivity) * excess / c.r_coeff_ohm_kpa
         return c.r_pressed_ohm + 1.0 / g
 
@@ -420,20 +635,33 @@ class Thread8(TaxelSource):
             creep[i] = state
         return ph * (1.0 + creep)
 
-    def voltage(self, taxel_kpa, t_s=None) -> np.ndarray:
+    def voltage(self, taxel_kpa, t_s=None, *, gain: float = 1.0) -> np.ndarray:
         """Noise-free divider voltage (T, rows, cols), V, for taxel pressures in time order.
 
-        See :meth:`effective_kpa` for the parameters and the class Notes for the model.
+        See :meth:`effective_kpa` for the parameters and the class Notes for the model;
+        ``gain`` scales every taxel's sensitivity (this recording's drift, :meth:`drift_gain`).
         """
-        r_s = self.resistance_ohm(self.effective_kpa(taxel_kpa, t_s), sensitivity=self.sensitivity)
+        sens = self.sensitivity if gain == 1.0 else self.sensitivity * float(gain)
+        thr = self.threshold_kpa if self.config.threshold_spread else None
+        r_s = self.resistance_ohm(self.effective_kpa(taxel_kpa, t_s), sensitivity=sens, threshold_kpa=thr)
         c = self.config
+        if c.floating_rows:
+            return matrix_scan_voltage(1.0 / r_s, c.v_plus, c.r_divider_ohm)
         return c.v_plus * c.r_divider_ohm / (r_s + c.r_divider_ohm)
 
     def counts(self, v) -> np.ndarray:
         """Noise-free ADC reading (float DN, not rounded) of voltages ``v``."""
         return np.asarray(v, dtype=float) / self.config.v_plus * self.full_scale
 
-    def frames(self, scenario: Scenario, *, seed: int | None = None) -> np.ndarray:
+    def drift_gain(self, rng: np.random.Generator) -> float:
+        r"""A recording's sensitivity drift factor :math:`e^{\sigma_d z}` (``drift_gain_spread``).
+
+        Exactly 1 (and nothing drawn) when the spread is 0.
+        """
+        s = self.config.drift_gain_spread
+        return float(np.exp(s * rng.standard_normal())) if s else 1.0
+
+    def frames(self, scenario: Scenario, *, seed: int | None = None, gain: float | None = None) -> np.ndarray:
         """ADC counts (T, rows, cols), uint8 DN (uint16 for ``adc_bits`` > 8), for ``scenario``.
 
         Parameters
@@ -441,7 +669,10 @@ class Thread8(TaxelSource):
         scenario : Scenario
             See :meth:`contact`.
         seed : int, optional
-            Seed of the noise; the same seed gives the same frames.
+            Seed of the noise (and of the drift gain); the same seed gives the same frames.
+        gain : float, optional
+            This recording's sensitivity drift factor; None: drawn from the
+            seed's generator before the noise (:meth:`drift_gain`; 1 without drift).
 
         Raises
         ------
@@ -452,7 +683,9 @@ class Thread8(TaxelSource):
         """
         rng = noise_rng(seed)
         state = self.contact(scenario)
-        v = self.voltage(state["taxel_kpa"], scenario.t_s)
+        if gain is None:
+            gain = self.drift_gain(rng)
+        v = self.voltage(state["taxel_kpa"], scenario.t_s, gain=gain)
         v = v + self.config.noise_v * rng.standard_normal(v.shape)
         dtype = np.uint8 if self.config.adc_bits <= 8 else np.uint16
         return np.clip(np.rint(self.counts(v)), 0, self.full_scale).astype(dtype)

@@ -230,3 +230,107 @@ def test_pair_separation_and_resolution():
         diameter_resolution(clf, clean, d, reliability=0.5)
     with pytest.raises(TypeError, match="classifier must be a WidthClassifier"):
         pair_separation("clf", clean, d)
+
+
+# ---- the modelled effects, each against an independent truth ------------------------------------------------
+def test_boussinesq_kernel_conserves_load_and_matches_closed_form():
+    from optitact.taxels.piezo16 import boussinesq_kernel
+
+    h, g = 2.5, 0.1
+    k = boussinesq_kernel(h, g, 4.0)
+    assert k.sum() == pytest.approx(1.0, abs=1e-12)                       # carries the whole load
+    m = (k.shape[0] - 1) // 2
+    # closed form 3 h^3 / (2 pi (r^2 + h^2)^2.5) per unit area; the truncated part of the load is
+    # 1 - (1 + cutoff^2)^-1.5 (exact integral), so the nodes carry the closed form divided by what is kept
+    kept = 1 - (1 + 16.0) ** -1.5
+    for r_idx in (0, 10, 25):
+        r = r_idx * g
+        want = 3 * h ** 3 / (2 * math.pi * (r * r + h * h) ** 2.5) * g * g / kept
+        assert k[m, m + r_idx] == pytest.approx(want, rel=2e-3)
+    # half width at half maximum 0.57 h (sqrt(2^(2/5) - 1) h = 0.566 h)
+    half = np.flatnonzero(k[m, m:] >= k[m, m] / 2)[-1] * g
+    assert half == pytest.approx(math.sqrt(2 ** 0.4 - 1) * h, abs=g)
+
+
+def test_leak_kernel_is_the_sheet_greens_function():
+    from scipy.special import k0
+
+    from optitact.taxels.piezo16 import leak_kernel
+
+    lam, g = 0.5, 0.1
+    k = leak_kernel(lam, g)
+    assert k.sum() == pytest.approx(1.0, abs=1e-12)
+    m = (k.shape[0] - 1) // 2
+    # K0(r / lam) / (2 pi lam^2) per unit area (its integral is 1): the nodes follow it away from the centre
+    for r_idx in (3, 5, 10):
+        want = k0(r_idx * g / lam) / (2 * math.pi * lam ** 2) * g * g
+        assert k[m, m + r_idx] == pytest.approx(want, rel=0.02)
+    assert np.allclose(k, k.T) and np.allclose(k, k[::-1])
+
+
+def test_spreading_fields_default_to_todays_pad():
+    base = Piezo16(Piezo16Config(noise_v=0.0, unit_gain_spread=0.0))
+    same = Piezo16(Piezo16Config(noise_v=0.0, unit_gain_spread=0.0, spread_depth_mm=2.0, rubber_leak_mm=0.0))
+    assert Piezo16Config().depth_of_spreading_mm == 2.0
+    sc = Scenario(Indenter("cylinder", size_mm=6.0), np.arange(3) / 1e3, x_mm=[0.0, 0.3, 0.9],
+                  angle_rad=math.pi / 2, depth_mm=0.7)
+    np.testing.assert_array_equal(base.frames(sc), same.frames(sc))
+    with pytest.raises(InputError, match="spread_depth_mm must be finite and > 0"):
+        Piezo16Config(spread_depth_mm=0.0)
+    with pytest.raises(InputError, match="rubber_leak_mm"):
+        Piezo16Config(rubber_leak_mm=-0.1)
+
+
+def test_spreading_conserves_volume_and_widens():
+    # a long pipe across a full pad: the compression summed over the electrodes (x pitch^2) ~ the indented
+    # volume per electrode area; deeper spreading and the rubber's leak keep it but widen the profile
+    kw = {"mask": FULL_MASK, "noise_v": 0.0, "unit_gain_spread": 0.0}
+    sc = Scenario(Indenter("cylinder", size_mm=10.0), np.zeros(1), angle_rad=math.pi / 2, depth_mm=0.7)
+    profiles = []
+    for extra in ({}, {"spread_depth_mm": 2.5}, {"spread_depth_mm": 2.5, "rubber_leak_mm": 0.5}):
+        st = Piezo16(Piezo16Config(**kw, **extra)).compression(sc)
+        profiles.append(st["mean_compression_mm"][0, 8])
+    a = math.sqrt(2 * 10.0 * 0.7 - 0.49)
+    area = 2 * (0.7 * a - a ** 3 / (3 * 2 * 10.0))                          # indented cross-section, mm^2
+    for prof in profiles:
+        # electrodes cover 2.0 of every 2.2 mm: the summed line samples area / pitch (within the gap's share)
+        assert prof.sum() * PITCH == pytest.approx(area, rel=0.05)
+    peaks = [p.max() for p in profiles]
+    assert peaks[0] > peaks[1] > peaks[2]
+
+
+def test_finger_errors_statistics():
+    from optitact.taxels.combined import finger_errors
+
+    dz, dx = finger_errors(np.random.default_rng(3), (400, 50), depth_spread_mm=0.02, step_jitter_mm=0.05)
+    assert dz.shape == dx.shape == (400, 50)
+    assert abs(dz.mean()) < 4 * 0.02 / math.sqrt(dz.size) and abs(dx.mean()) < 4 * 0.05 / math.sqrt(dx.size)
+    assert dz.std() == pytest.approx(0.02, rel=0.03) and dx.std() == pytest.approx(0.05, rel=0.03)
+    assert abs(np.corrcoef(dz.ravel(), dx.ravel())[0, 1]) < 0.03          # independent
+    z0, x0 = finger_errors(np.random.default_rng(3), 4)
+    assert not z0.any() and not x0.any()
+    with pytest.raises(InputError, match="depth_spread_mm"):
+        finger_errors(np.random.default_rng(0), 2, depth_spread_mm=-1.0)
+    with pytest.raises(TypeError, match="rng must be a numpy Generator"):
+        finger_errors(0, 2)
+
+
+def test_trace_with_finger_errors(ideal):
+    # a seed's readout noise is unchanged by the finger's errors; zero errors give the exact trace
+    exact = trace(ideal, 20.0, 4, seed=5)
+    np.testing.assert_array_equal(exact, trace(ideal, 20.0, 4, seed=5, depth_spread_mm=0.0, step_jitter_mm=0.0))
+    shaky = trace(ideal, 20.0, 4, seed=5, depth_spread_mm=0.05)
+    assert not np.array_equal(exact, shaky)
+    np.testing.assert_array_equal(shaky, trace(ideal, 20.0, 4, seed=5, depth_spread_mm=0.05))
+    # deeper press, more output: the depth error of each step moves its whole frame one way
+    rng = np.random.default_rng((5, 1))
+    dz = 0.05 * rng.standard_normal(4)
+    diff = (shaky - exact).sum(axis=(1, 2))
+    assert np.all(np.sign(diff) == np.sign(dz))
+
+
+def test_unit_gain_spread_has_configured_std():
+    src = Piezo16(Piezo16Config(mask=FULL_MASK, unit_gain_spread=0.15, unit_seed=4))
+    lg = np.log(src.unit_gain)
+    assert lg.std(ddof=1) == pytest.approx(0.15, rel=0.15)              # 256 units: ~4.4 % standard error
+    assert abs(lg.mean()) < 4 * 0.15 / 16

@@ -74,3 +74,35 @@ def test_published_figures_next_to_ours(result):
     assert "reference" in pub and pub["ks"] == [1, 3, 5] and pub["n_folds"] == 10
     assert pub["recognition"]["mu/left"] == [0.707, 0.781]
     assert pub["recognition"]["mu+sigma/both"] == [0.9, 0.92]
+
+
+def test_quick_figures_with_every_effect(result):
+    """Quick study (4 objects x 5 grasps, 5 folds, seed 0) with the effects of issue 35, recorded figures."""
+    rec = result["recognition"]
+    expected = {"mu/left": [0.85, 0.95], "mu/right": [0.80, 0.90], "mu/both": [0.80, 0.85],
+                "sigma/left": [0.70, 0.85], "mu+sigma/left": [1.0, 1.0], "mu+sigma/both": [1.0, 1.0]}
+    for metric, (lo, hi) in expected.items():               # one grasp of 20 is 0.05: allow one
+        assert abs(rec[metric][0] - lo) <= 0.051 and abs(rec[metric][1] - hi) <= 0.051, metric
+    assert result["ablation"] is None and result["ablation_size"] is None            # full runs only
+    left, right = result["jaws"]
+    assert left["mount_tilt_rad"] > right["mount_tilt_rad"] > 0
+
+
+def test_ablation_switches_each_effect_off():
+    sensors, proto = palpation.without("drift")
+    assert all(s.config.drift_gain_spread == 0 for s in sensors) and proto == palpation.GraspProtocol()
+    sensors, proto = palpation.without("object pose")
+    assert proto.offset_mm == 0 and proto.angle_range_rad == 0 and sensors[0].config.drift_gain_spread > 0
+    with pytest.raises(InputError, match="effect"):
+        palpation.without("gravity")
+    abl = palpation.palpation_ablation(objects=(OBJECTS[1], OBJECTS[9]), n_per_object=4, n_folds=4, seed=0,
+                                       effects=("drift",))
+    assert list(abl) == ["all on", "no drift"]
+    for rates in abl.values():
+        assert set(rates) == {f"{f}/{s}" for f in ("mu", "mu+sigma") for s in palpation.SENSORS}
+        assert all(len(v) == 3 and all(0.0 <= x <= 1.0 for x in v) for v in rates.values())
+    # a rigid cylinder and a soft ball are told apart whatever the drift
+    assert min(min(v) for v in abl["no drift"].values()) >= 0.8
+    rows = palpation.key_figures({"published": palpation.PUBLISHED, "recognition": {}, "ks": [1, 3, 5],
+                                  "n_folds": 10, "ablation": abl})
+    assert rows[-1][0].startswith("ablation no drift") and len(rows[-1][1]) == 6 and rows[-1][2] is None

@@ -72,3 +72,31 @@ def test_published_figures_next_to_ours(result):
     for n in ("1", "2", "4", "8"):
         lo, hi = result["mad_range_v"][n]
         assert 0 < lo <= hi
+
+
+def test_quick_study_figures(result):
+    # the quick study (seed 0, ⌀10/25/40 mm, 6 traces): figures pinned with explicit tolerances
+    t1, t2 = result["table1"], result["table2"]
+    assert result["ablation"] is None and result["finger"] == {"depth_spread_mm": 0.02, "step_jitter_mm": 0.02}
+    assert result["config"]["spread_depth_mm"] == 2.5 and result["config"]["rubber_leak_mm"] == 0.5
+    want_w = {"2": 6.5, "4": 13.2, "8": 26.8}                               # ⌀10 mm
+    for n, w in want_w.items():
+        assert t1[n]["10"] == pytest.approx(w, abs=1.0)
+    for d in ("10", "25", "40"):
+        assert 0.55 <= t2["1"][d] <= 0.80                                   # published 0.41-0.52
+        assert 0.085 <= t2["8"][d] <= 0.125                                 # published 0.079-0.103
+
+
+def test_ablation_switches_each_effect():
+    from optitact.studies.tracing import EFFECTS, ablation
+
+    ab = ablation(0, diameters=(10.0,), n_traces=2)
+    assert set(ab) == {"all on", *(f"no {k}" for k in EFFECTS)}
+    for tabs in ab.values():
+        assert set(tabs["table1"]) == {"1", "2", "4", "8"} and set(tabs["table1"]["8"]) == {"10"}
+    on = ab["all on"]
+    # narrower spreading (Boussinesq at 2 mm, no leak) raises the N = 1 neighbour difference
+    for off in ("no spreading through the rubber", "no rubber lateral leak"):
+        assert ab[off]["table2"]["1"]["10"] > on["table2"]["1"]["10"]
+    # the finger's depth spread roughens the finely sampled distribution: N = 8 difference falls without it
+    assert ab["no pressing-depth spread"]["table2"]["8"]["10"] < on["table2"]["8"]["10"]
