@@ -537,8 +537,7 @@ def _run_live(args) -> int:
                         opened = True
                     out.write(lf)
                     if recorder is not None:
-                        recorder.write(lf, ready=lf.wall_time + lf.latency, latency=lf.latency,
-                                       drift=lf.drift)
+                        recorder.write(lf)
                     if view is not None:
                         view.log(lf, latency_s=lf.latency)
                     last, n, n_b = lf, n + 1, n_b + lf.baseline

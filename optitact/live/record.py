@@ -74,7 +74,7 @@ import numpy as np
 from optitact.errors import InputError
 
 __all__ = ["ELEMENT_MSG", "FRAME_STORAGE", "JPEG_QUALITY", "QUEUE_FRAMES", "Recorder", "Recording",
-           "RecordingCapture", "STATUS_MSG", "TOPICS", "is_recording", "read_recording"]
+           "RecordingCapture", "STATUS_MSG", "TOPICS", "read_recording"]
 
 #: How a recorder stores the frames: raw (lossless, compressed chunks), JPEG, or not at all.
 FRAME_STORAGE = ("lossless", "lossy", "none")
@@ -322,9 +322,9 @@ class Recorder:
                 if item is None:
                     break
                 if not started:
-                    self._start(item[0])
+                    self._start(item)
                     started = True
-                self._write(*item)
+                self._write(item)
                 self.written += 1
             if not started:
                 self._start(None)
@@ -345,10 +345,11 @@ class Recorder:
             self._writer.add_attachment(create_time=time.time_ns(), log_time=time.time_ns(), name=name,
                                         media_type=media, data=data)
 
-    def _write(self, lf, ready: float, latency: float, drift) -> None:
+    def _write(self, lf) -> None:
         w, s = self._writer, self._schemas
         t_ns = _ns(lf.wall_time)
-        pub = _ns(ready) if np.isfinite(ready) else t_ns
+        latency, drift = float(lf.latency), lf.drift
+        pub = _ns(lf.wall_time + latency) if np.isfinite(latency) else t_ns
         header = {"stamp": _stamp(lf.wall_time), "frame_id": "optitact_sensor"}
         image = lf.image if getattr(lf, "image", None) is not None else lf.frame
         if self.frames_mode == "lossless":
@@ -401,23 +402,23 @@ class Recorder:
             err = self._error
             raise OSError(f"{self.partial}: the recording stopped: {err}") from err
 
-    def write(self, lf, *, ready: float = float("nan"), latency: float = float("nan"), drift=None) -> None:
+    def write(self, lf) -> None:
         """Queue one :class:`~optitact.live.stream.LiveFrame` (waits while the queue is full).
 
-        ``ready``: the wall-clock time its forces were ready (``publish_time``); ``latency``: capture to
-        forces (s); ``drift``: the drift tracker's state at this frame, if any.
+        Its :attr:`~optitact.live.stream.LiveFrame.latency` gives the moment its forces were ready
+        (``publish_time``), and its ``drift`` the drift tracker's state.
         """
         self._raise()
         if self.with_forces and lf.forces is None:
             raise ValueError("this recording has forces: the frame has none (no calibration)")
         try:
-            self._queue.put_nowait((lf, ready, latency, drift))
+            self._queue.put_nowait(lf)
         except queue.Full:
             t = time.perf_counter()
             while True:
                 self._raise()
                 try:
-                    self._queue.put((lf, ready, latency, drift), timeout=0.1)
+                    self._queue.put(lf, timeout=0.1)
                     break
                 except queue.Full:
                     continue
@@ -462,11 +463,6 @@ class Recorder:
 
 
 # ----------------------------------------------------------------------------- reading
-def is_recording(path) -> bool:
-    """Whether ``path`` names an MCAP recording (by its suffix)."""
-    return str(os.fspath(path)).lower().endswith(".mcap")
-
-
 @dataclass(frozen=True)
 class Recording:
     """What :func:`read_recording` finds in an MCAP file: its metadata, attachments and frames' storage.

@@ -358,10 +358,7 @@ def stream(source, *, calibration=None, pipeline: Pipeline | Callable | None = N
     collection) or when an error, ``KeyboardInterrupt`` included, leaves it.
     A capture object passed in is released too.
     """
-    if is_recording_source(source):
-        policy = frame_policy(source, policy or "all")
-    else:
-        policy = frame_policy(source, policy)
+    policy = frame_policy(source, policy)  # a recording is a file: every frame, in order
     n_base = integer(baseline_frames, "baseline_frames", minimum=0)
     if max_frames is not None:
         max_frames = integer(max_frames, "max_frames", minimum=1)

@@ -146,7 +146,7 @@ def _run(clip, calibration, fps: float, seconds: float, *, viewer: bool, recorde
             got = time.perf_counter()  # the forces were ready just before the generator gave them
             out.write(lf)
             if rec is not None:
-                rec.write(lf, ready=lf.wall_time + lf.latency, latency=lf.latency, drift=lf.drift)
+                rec.write(lf)
             if view is not None:
                 view.log(lf, latency_s=lf.latency)
                 viewer_ms.append((lf.latency + time.perf_counter() - got) * 1e3)
