@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import pathlib
 import re
+import shutil
 import warnings
 
 import optitact
@@ -48,6 +49,9 @@ autosummary_generate = True
 autosummary_generate_overwrite = True
 autosummary_ignore_module_all = False  # a module's members are exactly its __all__
 autosummary_imported_members = False
+# The stubs are regenerated from scratch at every build: a name removed from an __all__ must not
+# leave its old page (and a failing import) behind in a working tree.
+shutil.rmtree(DOCS / "api" / "generated", ignore_errors=True)
 autodoc_default_options = {"member-order": "bysource"}
 autodoc_typehints = "none"  # numpydoc's Parameters sections carry the types
 autodoc_preserve_defaults = True

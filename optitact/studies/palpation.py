@@ -349,6 +349,10 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
 def draw(fig, result: dict) -> None:
     """μ and σ series per object and the recognition table (k-NN rate per metric and k, 95 % CI).
 
+    Where the result carries the published rates (``result["published"]["recognition"]``), each
+    metric's published range over k is drawn over its bars (two black lines) in a grey band of that
+    range ± 5 points.
+
     Parameters
     ----------
     fig : matplotlib.figure.Figure
@@ -356,6 +360,8 @@ def draw(fig, result: dict) -> None:
     result : dict
         As returned by ``optitact.studies.run("palpation", ...)`` (or read back from its JSON).
     """
+    from matplotlib.patches import Rectangle
+
     ex, table, rate = result["examples"], result["table"], float(result["rate_hz"])
     names, mus, sigmas = ex["object"], ex["mu"], ex["sigma"]
     metrics = list(dict.fromkeys(table["metric"]))
@@ -385,6 +391,14 @@ def draw(fig, result: dict) -> None:
                capsize=2, label=f"k = {k}", color=f"C{j}")
     if "chance" in result:
         ax.axhline(100 * result["chance"], color="grey", ls="--", lw=1, label="chance")
+    published = (result.get("published") or {}).get("recognition", {})
+    shown = [m for m in metrics if m in published]
+    for metric in shown:   # the published range over k, and that range +- 5 points
+        i, first = metrics.index(metric), metric == shown[0]
+        lo, hi = (100 * float(v) for v in published[metric])
+        ax.add_patch(Rectangle((i - 0.45, lo - 5), 0.9, hi - lo + 10, color="k", alpha=0.08, lw=0,
+                               label="published ± 5 points" if first else None))
+        ax.hlines([lo, hi], i - 0.45, i + 0.45, color="k", lw=1.5, label="published range" if first else None)
     ax.set_xticks(pos, metrics, rotation=20, fontsize=8)
     ax.set_ylim(0, 105)
     ax.set_ylabel("recognition rate, % (mean, 95 % CI over folds)")

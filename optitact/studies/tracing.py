@@ -292,6 +292,10 @@ def run(seed: int, *, full: bool, progress: bool) -> dict:
 def draw(fig, result: dict) -> None:
     """Width and neighbour difference per N, the classifier's resolution and accuracy, example distributions.
 
+    Where the result carries the published figures (``result["published"]``), the ⌀10 mm widths are
+    drawn as black crosses with ±30 % bars (left of ⌀10) and the published ranges of the mean
+    neighbour difference as bands in their N's colour.
+
     Parameters
     ----------
     fig : matplotlib.figure.Figure
@@ -311,10 +315,20 @@ def draw(fig, result: dict) -> None:
             sel = n_all == n
             ax.errorbar(d_all[sel], np.asarray(table[key])[sel], yerr=np.asarray(table[err])[sel], marker="o",
                         capsize=2, color=f"C{j}", label=f"N = {n}")
+        pub = result.get("published") or {}
+        for j, n in enumerate(ns):   # the published figures where the paper gives them, ±30 % as error bars
+            if key == "width_mean" and str(n) in pub.get("width_d10", {}):
+                w = float(pub["width_d10"][str(n)])
+                ax.errorbar([9.0], [w], yerr=[[0.3 * w], [0.3 * w]], marker="x", ms=8, color="k", capsize=4,
+                            ls="none", label="published ⌀10 (±30 %)" if n == 2 else None)
+            if key == "mad_mean" and str(n) in pub.get("mad_range_v", {}):
+                lo, hi = (float(v) for v in pub["mad_range_v"][str(n)])
+                ax.axhspan(lo, hi, color=f"C{j}", alpha=0.2, lw=0, label=f"published, N = {n}")
         ax.set_xlabel("pipe diameter, mm")
         ax.set_ylabel(label)
         ax.set_title(label.split(" (")[0].split(",")[0] + " of the combined distribution")
-        ax.legend(fontsize=8)
+        ax.set_ylim(0, 1.3 * ax.get_ylim()[1])   # room for the legend above the curves
+        ax.legend(fontsize=7, ncol=2, loc="upper left")
     ax = fig.add_subplot(grid[0, 2])
     res = [np.nan if r is None else r for r in cls["resolution_mm"]]
     pos = np.arange(len(cls["n_steps"]))

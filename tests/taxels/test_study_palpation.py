@@ -51,6 +51,20 @@ def test_experiment_table_far_above_chance(result, tmp_path):
     path = tmp_path / "palpation.png"
     studies.save_plot("palpation", back, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the figure marks each published range over k, and that range +- 5 points, on its metric's bars
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
+    fig = Figure()
+    palpation.draw(fig, back)
+    bars = fig.axes[-1]
+    names = [t.get_text() for t in bars.get_xticklabels()]
+    bands = {names[round(r.get_x() + r.get_width() / 2)]: (r.get_y(), r.get_y() + r.get_height())
+             for r in bars.patches if isinstance(r, Rectangle) and r.get_alpha() == 0.08}
+    pub = back["published"]["recognition"]
+    assert set(bands) == set(pub)
+    for metric, (lo, hi) in pub.items():
+        assert bands[metric] == pytest.approx((100 * lo - 5, 100 * hi + 5), abs=1e-9)
     with pytest.raises(InputError, match="result is not a complete 'palpation' study result"):
         studies.save_plot("palpation", {"table": {}}, path)
 

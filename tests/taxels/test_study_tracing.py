@@ -8,6 +8,7 @@ import pytest
 
 from optitact import studies
 from optitact.errors import InputError
+from optitact.studies import tracing
 from optitact.studies.tracing import tracing_dataset
 
 
@@ -61,6 +62,14 @@ def test_plot_experiment(result, tmp_path):
     path = tmp_path / "tracing.png"
     studies.save_plot("tracing", result, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the published neighbour-difference ranges are bands on the difference panel
+    from matplotlib.figure import Figure
+
+    fig = Figure()
+    tracing.draw(fig, result)
+    spans = sorted((p.get_y(), p.get_y() + p.get_height()) for p in fig.axes[1].patches)
+    published = sorted(tuple(v) for v in result["published"]["mad_range_v"].values())
+    np.testing.assert_allclose(spans, published, rtol=0, atol=1e-12)
     with pytest.raises(InputError, match="result is not a complete 'tracing' study result"):
         studies.save_plot("tracing", {}, tmp_path / "x.png")
 
