@@ -91,9 +91,11 @@ class Thread8Config:
     - ``drift_gain_spread``: 1-sigma of ln(sensitivity) drift between recordings
       (grasps). Piezoresistive composites drift with temperature, humidity and
       their load history (incomplete recovery after the previous grasp): their
-      sensitivity changes by about 10 % between otherwise equal loadings
-      (published characterisations of Velostat/Linqstat films report drift
-      and repeatability errors of 5–20 %). Jaws: 0.1. Drawn per
+      sensitivity changes between otherwise equal loadings (published
+      characterisations of Velostat/Linqstat films report drift and
+      repeatability errors of 5–20 %). Jaws: 0.05, the low end of that range,
+      because the palpation paper describes its piezoresistive-rubber sensor
+      as "consistent over time with little relaxation". Drawn per
       :meth:`Thread8.frames` call (or given as its ``gain``).
     - ``floating_rows``: the scan drives one row at V₊ and reads each column
       through its divider resistor while the other rows are left open (a
