@@ -316,11 +316,12 @@ def draw(fig, result: dict) -> None:
             ax.errorbar(d_all[sel], np.asarray(table[key])[sel], yerr=np.asarray(table[err])[sel], marker="o",
                         capsize=2, color=f"C{j}", label=f"N = {n}")
         pub = result.get("published") or {}
+        widths = pub.get("width_d10", {})
         for j, n in enumerate(ns):   # the published figures where the paper gives them, ±30 % as error bars
-            if key == "width_mean" and str(n) in pub.get("width_d10", {}):
-                w = float(pub["width_d10"][str(n)])
+            if key == "width_mean" and str(n) in widths:
+                w = float(widths[str(n)])
                 ax.errorbar([9.0], [w], yerr=[[0.3 * w], [0.3 * w]], marker="x", ms=8, color="k", capsize=4,
-                            ls="none", label="published ⌀10 (±30 %)" if n == 2 else None)
+                            ls="none", label="published ⌀10 (±30 %)" if str(n) == next(iter(widths)) else None)
             if key == "mad_mean" and str(n) in pub.get("mad_range_v", {}):
                 lo, hi = (float(v) for v in pub["mad_range_v"][str(n)])
                 ax.axhspan(lo, hi, color=f"C{j}", alpha=0.2, lw=0, label=f"published, N = {n}")
